@@ -1,0 +1,64 @@
+#include <exception>
+#include <ostream>
+
+#include "command.h"
+#include "rotoscan/core/logging.h"
+#include "rotoscan/core/version.h"
+
+namespace rotoscan::cli {
+
+int ReportStatus(const Context& context, const std::string& command, const Status& status) {
+  if (status.ok()) return kExitOk;
+  *context.err << "rotoscan " << command << ": " << status.ToString() << "\n";
+  return status.code() == StatusCode::kUnimplemented ? kExitNotBuilt : kExitFailure;
+}
+
+int NotBuilt(const Context& context, const std::string& command, const std::string& what) {
+  *context.err << "rotoscan " << command << ": not built yet: " << what << "\n";
+  return kExitNotBuilt;
+}
+
+int Main(int argc, const char* const* argv, std::ostream& out, std::ostream& err) {
+  CLI::App app{"rotoscan " ROTOSCAN_VERSION_STRING
+               ": color 3D laser turntable scanner (calibrate, scan, process, mesh)",
+               "rotoscan"};
+  app.set_version_flag("--version", "rotoscan " ROTOSCAN_VERSION_STRING);
+  app.require_subcommand(1);
+  app.fallthrough();
+  std::string log_level = "info";
+  bool no_progress = false;
+  app.add_option("--log-level", log_level, "trace, debug, info, warning, error or off")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warning", "warn", "error", "off"}));
+  app.add_flag("--no-progress", no_progress,
+               "never draw progress bars (they are off in pipes and CI anyway)");
+
+  ProgressBar bar(ProgressBar::Mode::kAuto);
+  ProgressBar quiet(ProgressBar::Mode::kNever);
+  Context context{&out, &err, &bar};
+  int exit_code = kExitOk;
+  for (Registrar registrar :
+       {RegisterDemo, RegisterSimulate, RegisterCalibrate, RegisterExtract, RegisterProcess, RegisterMesh,
+        RegisterEvaluate, RegisterScan, RegisterDevice, RegisterBench}) {
+    registrar(app, context, &exit_code);
+  }
+  // Global options must be applied before a command's callback runs.
+  app.parse_complete_callback([&] {
+    if (auto level = ParseLogLevel(log_level)) SetLogLevel(*level);
+    if (no_progress) context.progress = &quiet;
+  });
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // --help (on any command) and --version arrive here with exit code 0; CLI11 prints them.
+    const int code = app.exit(e, out, err);
+    return code == 0 ? kExitOk : kExitUsage;
+  } catch (const std::exception& e) {
+    // A library precondition failure is a bug; report it without crashing.
+    err << "rotoscan: internal error: " << e.what() << "\n";
+    return kExitFailure;
+  }
+  return exit_code;
+}
+
+}  // namespace rotoscan::cli

@@ -1,0 +1,86 @@
+// Progress of long work (rendering, processing, calibration). Library functions take a `Progress*` that
+// may be null; the CLI passes a ProgressBar.
+//
+// ProgressBar draws a one-line bar with rate and time left when its stream is a terminal, and stays quiet
+// otherwise (pipes, files, CI=true in the environment): a log of 1,200 redraws helps no one. It redraws at
+// most ten times a second, so calling Advance() per frame is cheap. Thread-safe.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <cstdio>
+#include <mutex>
+#include <string>
+
+namespace rotoscan {
+
+class Progress {
+ public:
+  virtual ~Progress() = default;
+  // Starts a phase of `total` units (0 if unknown) named `label`.
+  virtual void Begin(const std::string& label, uint64_t total) = 0;
+  // `n` more units are done.
+  virtual void Advance(uint64_t n = 1) = 0;
+  // The phase ended (successfully or not).
+  virtual void End() = 0;
+  // True when the user asked to stop; long work checks it and returns kCancelled.
+  virtual bool Cancelled() const { return false; }
+};
+
+// Begin() on construction and End() on scope exit; tolerates a null Progress.
+class ProgressScope {
+ public:
+  ProgressScope(Progress* progress, const std::string& label, uint64_t total) : progress_(progress) {
+    if (progress_ != nullptr) progress_->Begin(label, total);
+  }
+  ~ProgressScope() {
+    if (progress_ != nullptr) progress_->End();
+  }
+  ProgressScope(const ProgressScope&) = delete;
+  ProgressScope& operator=(const ProgressScope&) = delete;
+  void Advance(uint64_t n = 1) {
+    if (progress_ != nullptr) progress_->Advance(n);
+  }
+  bool Cancelled() const { return progress_ != nullptr && progress_->Cancelled(); }
+
+ private:
+  Progress* progress_;
+};
+
+class ProgressBar : public Progress {
+ public:
+  enum class Mode { kAuto, kAlways, kNever };
+  // Draws on `stream` (stderr by default). kAuto draws only on a terminal outside CI.
+  explicit ProgressBar(Mode mode = Mode::kAuto, std::FILE* stream = stderr);
+  ~ProgressBar() override;
+
+  void Begin(const std::string& label, uint64_t total) override;
+  void Advance(uint64_t n = 1) override;
+  void End() override;
+
+  // Whether this bar draws anything (decided at construction).
+  bool enabled() const { return enabled_; }
+  uint64_t done() const { return done_.load(); }
+
+  // The line that would be drawn, e.g. "render  [#########.........]  45% 540/1200  38.2/s  eta 17s".
+  std::string FormatLine(double elapsed_s) const;
+
+ private:
+  void Draw(bool final_line);
+
+  std::FILE* stream_;
+  bool enabled_;
+  std::mutex mutex_;
+  std::string label_;
+  uint64_t total_ = 0;
+  std::atomic<uint64_t> done_{0};
+  bool active_ = false;
+  std::chrono::steady_clock::time_point start_;
+  std::chrono::steady_clock::time_point last_draw_;
+};
+
+// Whether a progress bar should be drawn on `stream`: a terminal, TERM not "dumb", CI not set.
+bool ShouldDrawProgress(std::FILE* stream);
+
+}  // namespace rotoscan

@@ -1,0 +1,13 @@
+#include "rotoscan/core/check.h"
+
+namespace rotoscan::internal {
+
+CheckFailure::CheckFailure(const char* file, int line, const char* condition) {
+  stream_ << file << ":" << line << ": check failed: " << condition << ". ";
+}
+
+CheckFailure::~CheckFailure() noexcept(false) {
+  throw PreconditionError(stream_.str());
+}
+
+}  // namespace rotoscan::internal

@@ -1,0 +1,92 @@
+#include "rotoscan/core/progress.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+
+namespace rotoscan {
+
+bool ShouldDrawProgress(std::FILE* stream) {
+  if (stream == nullptr || isatty(fileno(stream)) == 0) return false;
+  const char* term = std::getenv("TERM");
+  if (term != nullptr && std::strcmp(term, "dumb") == 0) return false;
+  const char* ci = std::getenv("CI");
+  return ci == nullptr || ci[0] == '\0' || std::strcmp(ci, "false") == 0 || std::strcmp(ci, "0") == 0;
+}
+
+ProgressBar::ProgressBar(Mode mode, std::FILE* stream)
+    : stream_(stream),
+      enabled_(mode == Mode::kAlways || (mode == Mode::kAuto && ShouldDrawProgress(stream))) {}
+
+ProgressBar::~ProgressBar() {
+  if (active_) End();
+}
+
+void ProgressBar::Begin(const std::string& label, uint64_t total) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  label_ = label;
+  total_ = total;
+  done_ = 0;
+  active_ = true;
+  start_ = std::chrono::steady_clock::now();
+  last_draw_ = start_ - std::chrono::seconds(1);
+  Draw(false);
+}
+
+void ProgressBar::Advance(uint64_t n) {
+  done_.fetch_add(n);
+  if (!enabled_) return;
+  const auto now = std::chrono::steady_clock::now();
+  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+  if (!lock.owns_lock() || now - last_draw_ < std::chrono::milliseconds(100)) return;
+  Draw(false);
+}
+
+void ProgressBar::End() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!active_) return;
+  Draw(true);
+  active_ = false;
+}
+
+std::string ProgressBar::FormatLine(double elapsed_s) const {
+  constexpr int kWidth = 30;
+  const uint64_t done = done_.load();
+  std::string line = label_;
+  char buffer[128];
+  const double rate = elapsed_s > 0 ? static_cast<double>(done) / elapsed_s : 0.0;
+  if (total_ > 0) {
+    const double fraction = std::min(1.0, static_cast<double>(done) / static_cast<double>(total_));
+    const int filled = static_cast<int>(std::lround(fraction * kWidth));
+    line += "  [" + std::string(filled, '#') + std::string(kWidth - filled, '.') + "]";
+    std::snprintf(buffer, sizeof(buffer), " %3d%% %llu/%llu", static_cast<int>(fraction * 100.0),
+                  static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_));
+    line += buffer;
+    if (rate > 0 && done < total_) {
+      std::snprintf(buffer, sizeof(buffer), "  %.1f/s  eta %.0fs", rate,
+                    static_cast<double>(total_ - done) / rate);
+      line += buffer;
+    } else {
+      std::snprintf(buffer, sizeof(buffer), "  %.1fs", elapsed_s);
+      line += buffer;
+    }
+  } else {
+    std::snprintf(buffer, sizeof(buffer), "  %llu  %.1f/s", static_cast<unsigned long long>(done), rate);
+    line += buffer;
+  }
+  return line;
+}
+
+void ProgressBar::Draw(bool final_line) {
+  if (!enabled_) return;
+  const auto now = std::chrono::steady_clock::now();
+  last_draw_ = now;
+  const double elapsed = std::chrono::duration<double>(now - start_).count();
+  // \r and clear-to-end-of-line redraw in place; the final line ends with a newline.
+  std::fprintf(stream_, "\r%s\x1b[K%s", FormatLine(elapsed).c_str(), final_line ? "\n" : "");
+  std::fflush(stream_);
+}
+
+}  // namespace rotoscan

@@ -1,0 +1,42 @@
+// Helpers for the GoogleTest suites: Eigen matchers, test data paths, scratch directories.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <Eigen/Core>
+
+namespace rotoscan::testing {
+
+// Path of a file under the repository's data/ directory (test data shipped with the project).
+std::filesystem::path DataPath(const std::string& relative);
+
+// A fresh directory under the system temp dir, removed with its content on destruction.
+class ScratchDir {
+ public:
+  ScratchDir();
+  ~ScratchDir();
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+  const std::filesystem::path& path() const { return path_; }
+  std::filesystem::path operator/(const std::string& name) const { return path_ / name; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// EXPECT_THAT(v, EigenNear(expected, 1e-9)): element-wise |v - expected| <= tolerance, same shape.
+MATCHER_P2(EigenNear, expected, tolerance,
+           std::string(negation ? "is not" : "is") + " within " + ::testing::PrintToString(tolerance) +
+               " of\n" + ::testing::PrintToString(expected)) {
+  if (arg.rows() != expected.rows() || arg.cols() != expected.cols()) {
+    *result_listener << "shape " << arg.rows() << "x" << arg.cols();
+    return false;
+  }
+  const double err = (arg - expected).cwiseAbs().maxCoeff();
+  *result_listener << "largest difference " << err;
+  return err <= tolerance;
+}
+
+}  // namespace rotoscan::testing
