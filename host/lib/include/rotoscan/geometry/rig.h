@@ -26,10 +26,10 @@ const char* LaserName(LaserId id);  // "left" / "right"
 
 struct Rig {
   CameraModel camera;
-  Plane laser_plane[2];                      // indexed by LaserId, camera frame
-  Eigen::Vector3d axis_point_in_cam{0, 0, 0};  // the table top's centre (a point on the axis), mm
+  Plane laser_plane[2];                             // indexed by LaserId, camera frame
+  Eigen::Vector3d axis_point_in_cam{0, 0, 0};       // the table top's centre (a point on the axis), mm
   Eigen::Vector3d axis_direction_in_cam{0, -1, 0};  // unit, pointing up out of the table
-  double step_angle_rad = 0.0;               // table rotation per step, radians (0: unknown)
+  double step_angle_rad = 0.0;                      // table rotation per step, radians (0: unknown)
 
   const Plane& laser(LaserId id) const { return laser_plane[static_cast<int>(id)]; }
   Plane& laser(LaserId id) { return laser_plane[static_cast<int>(id)]; }
@@ -46,10 +46,10 @@ struct Rig {
   Eigen::Isometry3d WorldFromCamAtAngle(double table_angle) const;
 };
 
-// calib.yaml: OpenCV FileStorage YAML (readable by any OpenCV user). Keys: image_width, image_height, K (3x3),
-// distortion (5x1: k1 k2 p1 p2 k3), laser_left_plane / laser_right_plane (4x1: nx ny nz d, camera frame),
-// axis_point (3x1, camera frame, mm), axis_direction (3x1), step_angle_deg, and the DLT matrix P (3x4,
-// paper eq. 3: K [I|0] since the camera frame is the reference). Readers ignore unknown keys, so the
+// calib.yaml: OpenCV FileStorage YAML (readable by any OpenCV user). Keys: image_width, image_height, K
+// (3x3), distortion (5x1: k1 k2 p1 p2 k3), laser_left_plane / laser_right_plane (4x1: nx ny nz d, camera
+// frame), axis_point (3x1, camera frame, mm), axis_direction (3x1), step_angle_deg, and the DLT matrix P
+// (3x4, paper eq. 3: K [I|0] since the camera frame is the reference). Readers ignore unknown keys, so the
 // calibration adds its report (WriteRigNodes into its own FileStorage, then its own keys).
 Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig);  // atomic
 Result<Rig> ReadRigYaml(const std::filesystem::path& path);
