@@ -57,7 +57,7 @@ Eigen::Vector2d CameraModel::Project(const Eigen::Vector3d& point_in_cam) const 
 }
 
 Eigen::Vector2d CameraModel::Undistort(const Eigen::Vector2d& pixel) const {
-  const Eigen::Vector2d target((pixel.x() - cx) / fx, (pixel.y() - cy) / fy);
+  Eigen::Vector2d target((pixel.x() - cx) / fx, (pixel.y() - cy) / fy);
   if (!HasDistortion()) return target;
   // Fixed-point iteration (as OpenCV's undistortPoints) gets close; Gauss-Newton with a numeric Jacobian
   // then makes it exact.

@@ -17,7 +17,7 @@ class CheckFailure {
   CheckFailure(const char* file, int line, const char* condition);
   CheckFailure(const CheckFailure&) = delete;
   CheckFailure& operator=(const CheckFailure&) = delete;
-  [[noreturn]] ~CheckFailure() noexcept(false);
+  [[noreturn]] ~CheckFailure() noexcept(false);  // NOLINT(bugprone-exception-escape): throws by design
 
   template <typename T>
   CheckFailure& operator<<(const T& value) {
