@@ -1,0 +1,175 @@
+#include <algorithm>
+#include <chrono>
+#include <string>
+#include <thread>
+
+#include <open3d/geometry/KDTreeSearchParam.h>
+#include <open3d/geometry/PointCloud.h>
+#include <open3d/geometry/TriangleMesh.h>
+#include <open3d/io/TriangleMeshIO.h>
+#include <open3d/utility/Logging.h>
+
+#include "rotoscan/core/file.h"
+#include "rotoscan/core/logging.h"
+#include "rotoscan/mesh/mesh.h"
+
+namespace rotoscan::mesh {
+namespace fs = std::filesystem;
+
+Status PoissonOptions::Check() const {
+  if (depth < 4 || depth > 12)
+    return InvalidArgumentError("Poisson depth must be in 4..12, got " + std::to_string(depth));
+  if (trim_density_quantile < 0 || trim_density_quantile >= 1) {
+    return InvalidArgumentError("trim_density_quantile must be in [0, 1)");
+  }
+  if (normal_neighbours < 3) return InvalidArgumentError("normal_neighbours must be >= 3");
+  if (threads < 0) return InvalidArgumentError("threads must be >= 0");
+  return Status::Ok();
+}
+
+namespace {
+
+TriangleMesh FromOpen3d(const open3d::geometry::TriangleMesh& in) {
+  TriangleMesh out;
+  out.vertices = in.vertices_;
+  out.vertex_colors = in.vertex_colors_;
+  out.triangles.reserve(in.triangles_.size());
+  for (const auto& t : in.triangles_) out.triangles.emplace_back(t.x(), t.y(), t.z());
+  return out;
+}
+
+open3d::geometry::TriangleMesh ToOpen3d(const TriangleMesh& in) {
+  open3d::geometry::TriangleMesh out;
+  out.vertices_ = in.vertices;
+  out.vertex_colors_ = in.vertex_colors;
+  out.triangles_.reserve(in.triangles.size());
+  for (const auto& t : in.triangles) out.triangles_.emplace_back(t.x(), t.y(), t.z());
+  return out;
+}
+
+struct QuietOpen3d {
+  QuietOpen3d() { open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error); }
+};
+
+}  // namespace
+
+Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const PoissonOptions& options,
+                                        PoissonSummary* summary, Progress* progress) {
+  static QuietOpen3d quiet;
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  const std::size_t n = cloud.points.size();
+  if (n < 100)
+    return InvalidArgumentError("Poisson meshing needs at least 100 points, got " + std::to_string(n));
+  if ((!cloud.normals.empty() && cloud.normals.size() != n) ||
+      (!cloud.colors.empty() && cloud.colors.size() != n)) {
+    return InvalidArgumentError("point cloud arrays differ in length (points, normals, colors)");
+  }
+  for (const auto& p : cloud.points) {
+    if (!p.allFinite()) return InvalidArgumentError("point cloud holds a non-finite point");
+  }
+  ProgressScope scope(progress, "mesh", 3);
+  const auto start = std::chrono::steady_clock::now();
+
+  open3d::geometry::PointCloud pcd;
+  pcd.points_ = cloud.points;
+  pcd.colors_ = cloud.colors;
+  bool need_normals = cloud.normals.empty();
+  if (!need_normals) {
+    pcd.normals_ = cloud.normals;
+    for (const auto& normal : cloud.normals) {
+      if (!(normal.squaredNorm() > 0.25)) {
+        need_normals = true;
+        break;
+      }
+    }
+  }
+  if (need_normals) {
+    // Orient estimated normals away from the cloud's centroid axis: right for a turntable object.
+    pcd.EstimateNormals(open3d::geometry::KDTreeSearchParamKNN(options.normal_neighbours));
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto& p : pcd.points_) centroid += p;
+    centroid /= static_cast<double>(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      Eigen::Vector3d outward = pcd.points_[i] - centroid;
+      outward.z() = 0;  // away from the vertical axis
+      if (pcd.normals_[i].dot(outward) < 0) pcd.normals_[i] = -pcd.normals_[i];
+    }
+  }
+  scope.Advance();
+
+  const int threads = options.threads > 0
+                          ? options.threads
+                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  auto [o3d_mesh, densities] = open3d::geometry::TriangleMesh::CreateFromPointCloudPoisson(
+      pcd, static_cast<size_t>(options.depth), 0.0f, 1.1f, false, threads);
+  scope.Advance();
+  if (!o3d_mesh || o3d_mesh->triangles_.empty())
+    return NotConvergedError("Poisson reconstruction produced no surface");
+  const std::size_t before = o3d_mesh->vertices_.size();
+  if (options.trim_density_quantile > 0 && !densities.empty()) {
+    std::vector<double> sorted = densities;
+    const auto k =
+        static_cast<std::ptrdiff_t>(options.trim_density_quantile * static_cast<double>(sorted.size()));
+    std::nth_element(sorted.begin(), sorted.begin() + k, sorted.end());
+    const double threshold = sorted[static_cast<std::size_t>(k)];
+    std::vector<bool> remove(densities.size());
+    for (std::size_t i = 0; i < densities.size(); ++i) remove[i] = densities[i] < threshold;
+    o3d_mesh->RemoveVerticesByMask(remove);
+  }
+  scope.Advance();
+  if (summary != nullptr) {
+    summary->input_points = n;
+    summary->vertices_before_trim = before;
+    summary->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  ROTOSCAN_LOG(kDebug) << "Poisson depth " << options.depth << ": " << n << " points -> "
+                       << o3d_mesh->vertices_.size() << " vertices, " << o3d_mesh->triangles_.size()
+                       << " triangles";
+  return FromOpen3d(*o3d_mesh);
+}
+
+Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
+  static QuietOpen3d quiet;
+  const std::string ext = path.extension().string();
+  if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
+    return InvalidArgumentError("mesh file " + path.string() + ": extension must be .ply, .obj or .stl");
+  }
+  if (mesh.vertices.empty() || mesh.triangles.empty())
+    return InvalidArgumentError("refusing to write an empty mesh");
+  open3d::geometry::TriangleMesh o3d = ToOpen3d(mesh);
+  if (ext == ".stl") o3d.ComputeTriangleNormals();
+  return WriteAtomically(path, [&](const fs::path& tmp) -> Status {
+    // Open3D picks the format by extension: write beside with the real extension, then move into place.
+    const fs::path with_ext = fs::path(tmp.string() + ext);
+    const bool ok = open3d::io::WriteTriangleMesh(with_ext.string(), o3d, /*write_ascii=*/false,
+                                                  /*compressed=*/false, /*write_vertex_normals=*/false,
+                                                  /*write_vertex_colors=*/!mesh.vertex_colors.empty(),
+                                                  /*write_triangle_uvs=*/false, /*print_progress=*/false);
+    std::error_code ec;
+    if (!ok) {
+      fs::remove(with_ext, ec);
+      return IoError("cannot write mesh " + path.string());
+    }
+    fs::rename(with_ext, tmp, ec);
+    if (ec) return IoError("cannot move " + with_ext.string() + ": " + ec.message());
+    return Status::Ok();
+  });
+}
+
+Result<TriangleMesh> ReadMesh(const fs::path& path) {
+  static QuietOpen3d quiet;
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return NotFoundError("mesh file " + path.string() + " does not exist");
+  open3d::geometry::TriangleMesh o3d;
+  if (!open3d::io::ReadTriangleMesh(path.string(), o3d) || o3d.vertices_.empty()) {
+    return CorruptDataError("cannot read a mesh from " + path.string());
+  }
+  for (const auto& t : o3d.triangles_) {
+    if ((t.array() < 0).any() || (t.array() >= static_cast<int>(o3d.vertices_.size())).any()) {
+      return CorruptDataError(path.string() + ": a triangle indexes a vertex that does not exist");
+    }
+  }
+  return FromOpen3d(o3d);
+}
+
+}  // namespace rotoscan::mesh

@@ -1,0 +1,153 @@
+#include "rotoscan/mesh/mesh.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include <opencv2/core.hpp>
+
+#include "testing/testing.h"
+
+namespace rotoscan::mesh {
+namespace {
+
+constexpr double kRadius = 40.0;  // mm
+const Eigen::Vector3d kCentre(5, -3, 50);
+
+// Points on a sphere with outward normals; red on top (z > centre), blue below.
+ColoredPoints Sphere(int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  ColoredPoints cloud;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d d = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    cloud.points.push_back(kCentre + kRadius * d);
+    cloud.normals.push_back(d);
+    cloud.colors.push_back(d.z() > 0 ? Eigen::Vector3d(0.9, 0.1, 0.1) : Eigen::Vector3d(0.1, 0.1, 0.9));
+  }
+  return cloud;
+}
+
+TEST(PoissonTest, SphereIsRecoveredWithColors) {
+  PoissonOptions options;
+  options.depth = 6;
+  options.trim_density_quantile = 0.0;  // a closed sphere: nothing to trim
+  PoissonSummary summary;
+  const Result<TriangleMesh> mesh = PoissonReconstruct(Sphere(6000, 1), options, &summary);
+  ASSERT_TRUE(mesh.ok()) << mesh.status().ToString();
+  ASSERT_GT(mesh->triangles.size(), 500u);
+  ASSERT_EQ(mesh->vertex_colors.size(), mesh->vertices.size());
+  double sum_sq = 0;
+  for (std::size_t i = 0; i < mesh->vertices.size(); ++i) {
+    const Eigen::Vector3d d = mesh->vertices[i] - kCentre;
+    const double err = d.norm() - kRadius;
+    sum_sq += err * err;
+    // Colors follow the hemisphere (away from the equator, where they blend).
+    if (d.z() > 10) {
+      EXPECT_GT(mesh->vertex_colors[i].x(), mesh->vertex_colors[i].z());
+    } else if (d.z() < -10) {
+      EXPECT_LT(mesh->vertex_colors[i].x(), mesh->vertex_colors[i].z());
+    }
+  }
+  // Octree cell at depth 6 over ~1.1 x 80 mm: ~1.4 mm; the surface is found well inside a cell.
+  EXPECT_LT(std::sqrt(sum_sq / mesh->vertices.size()), 0.4);
+  EXPECT_EQ(summary.input_points, 6000u);
+}
+
+TEST(PoissonTest, NormalsAreEstimatedWhenMissing) {
+  ColoredPoints cloud = Sphere(4000, 2);
+  cloud.normals.clear();
+  PoissonOptions options;
+  options.depth = 5;
+  options.trim_density_quantile = 0.0;
+  const Result<TriangleMesh> mesh = PoissonReconstruct(cloud, options);
+  ASSERT_TRUE(mesh.ok()) << mesh.status().ToString();
+  double worst = 0;
+  for (const auto& v : mesh->vertices) worst = std::max(worst, std::abs((v - kCentre).norm() - kRadius));
+  EXPECT_LT(worst, 2.0);  // inward-flipped normals would give a garbage surface, far off the sphere
+}
+
+TEST(PoissonTest, BadInput) {
+  PoissonOptions options;
+  EXPECT_EQ(PoissonReconstruct(Sphere(50, 3), options).status().code(), StatusCode::kInvalidArgument);
+  ColoredPoints mismatched = Sphere(500, 3);
+  mismatched.colors.pop_back();
+  EXPECT_EQ(PoissonReconstruct(mismatched, options).status().code(), StatusCode::kInvalidArgument);
+  ColoredPoints nan = Sphere(500, 3);
+  nan.points[7].x() = std::nan("");
+  EXPECT_EQ(PoissonReconstruct(nan, options).status().code(), StatusCode::kInvalidArgument);
+  options.depth = 20;
+  EXPECT_EQ(PoissonReconstruct(Sphere(500, 3), options).status().code(), StatusCode::kInvalidArgument);
+}
+
+TriangleMesh Tetrahedron() {
+  TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0}, {10, 0, 0}, {0, 10, 0}, {0, 0, 10}};
+  mesh.vertex_colors = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}};
+  mesh.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  return mesh;
+}
+
+TEST(MeshIoTest, PlyRoundTripAndFormats) {
+  rotoscan::testing::ScratchDir dir;
+  const TriangleMesh mesh = Tetrahedron();
+  ASSERT_TRUE(WriteMesh(dir / "t.ply", mesh).ok());
+  const Result<TriangleMesh> back = ReadMesh(dir / "t.ply");
+  ASSERT_TRUE(back.ok()) << back.status().ToString();
+  ASSERT_EQ(back->vertices.size(), 4u);
+  ASSERT_EQ(back->triangles.size(), 4u);
+  EXPECT_NEAR(back->vertices[3].z(), 10.0, 1e-5);
+  ASSERT_EQ(back->vertex_colors.size(), 4u);
+  EXPECT_NEAR(back->vertex_colors[1].y(), 1.0, 1e-2);
+  EXPECT_TRUE(WriteMesh(dir / "t.obj", mesh).ok());
+  EXPECT_TRUE(WriteMesh(dir / "t.stl", mesh).ok());
+  EXPECT_GT(std::filesystem::file_size(dir / "t.stl"), 84u);  // binary STL: header + count + 4 x 50 bytes
+  EXPECT_EQ(WriteMesh(dir / "t.xyz", mesh).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(WriteMesh(dir / "e.ply", TriangleMesh{}).code(), StatusCode::kInvalidArgument);
+  EXPECT_FALSE(std::filesystem::exists(dir / "e.ply"));
+  EXPECT_EQ(ReadMesh(dir / "none.ply").status().code(), StatusCode::kNotFound);
+}
+
+TEST(PreviewTest, MeshFillsTheMiddleAndLeavesTheCorners) {
+  PoissonOptions options;
+  options.depth = 5;
+  options.trim_density_quantile = 0.0;
+  const Result<TriangleMesh> mesh = PoissonReconstruct(Sphere(3000, 4), options);
+  ASSERT_TRUE(mesh.ok());
+  PreviewOptions view;
+  view.width = 160;
+  view.height = 120;
+  view.elevation_deg = 60;  // looking down: the red top dominates the middle
+  const Result<cv::Mat> image = RenderPreview(*mesh, view);
+  ASSERT_TRUE(image.ok()) << image.status().ToString();
+  ASSERT_EQ(image->cols, 160);
+  const cv::Vec3b centre = image->at<cv::Vec3b>(60, 80);
+  EXPECT_GT(centre[2], 2 * centre[0]) << "expected red in BGR, got " << cv::Mat(centre).t();
+  EXPECT_TRUE(image->at<cv::Vec3b>(0, 0) == cv::Vec3b(38, 32, 30));
+  // Framing fits the bounding box's sphere (radius sqrt(3) R) in the frame's height: the sphere's disc has
+  // a radius of about 60 px / sqrt(3) * 0.95 = 33 px, so ~3,400 pixels.
+  cv::Mat channels[3];
+  cv::split(*image, channels);
+  const int covered = cv::countNonZero(channels[2] != 30);
+  EXPECT_GT(covered, 2800);
+  EXPECT_LT(covered, 4200);
+  rotoscan::testing::ScratchDir dir;
+  ASSERT_TRUE(WritePng(dir / "p.png", *image).ok());
+  EXPECT_GT(std::filesystem::file_size(dir / "p.png"), 100u);
+}
+
+TEST(PreviewTest, PointsAndBadOptions) {
+  PreviewOptions view;
+  view.width = 100;
+  view.height = 100;
+  const Result<cv::Mat> image = RenderPointPreview(Sphere(20000, 5), view);
+  ASSERT_TRUE(image.ok());
+  EXPECT_FALSE(image->at<cv::Vec3b>(50, 50) == cv::Vec3b(38, 32, 30));
+  view.width = 2;
+  EXPECT_EQ(RenderPointPreview(Sphere(10, 5), view).status().code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(RenderPreview(TriangleMesh{}, PreviewOptions{}).status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace rotoscan::mesh
