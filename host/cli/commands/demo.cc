@@ -1,37 +1,131 @@
-// rotoscan demo: the main job of the README. A full scan on the virtual scanner: render calibration
-// bundles, calibrate, render a scan of the bundled Spot mesh, process it into a colored point cloud, mesh
-// it and draw a preview picture. Until every stage exists it runs what exists and says what is missing.
+// rotoscan demo: the main job of the README. A full scan on the virtual scanner, calibration included:
+//   1. render a calibration bundle (a checkerboard standing on the table, turned, lasers on and off),
+//   2. calibrate the rig from it (camera, both laser planes, table axis: three steps + joint refinement),
+//   3. render a scan of the bundled Spot model (textured) with both lasers,
+//   4. process it with the calibration into a colored point cloud,
+//   5. mesh it (Poisson) and draw a preview picture,
+//   6. compare the cloud with the true surface.
+// Each stage is the command of the same name run with the arguments printed, so that a person can re-run
+// any one of them by hand. Outputs go to --out; everything is replaced on a second run.
+#include <filesystem>
 #include <ostream>
+#include <sstream>
+#include <vector>
 
 #include "command.h"
+
+#ifndef ROTOSCAN_DATA_DIR
+#define ROTOSCAN_DATA_DIR "data"
+#endif
 
 namespace rotoscan::cli {
 
 struct DemoOptions {
   std::string out_dir = "rotoscan-demo";
+  std::string data_dir = ROTOSCAN_DATA_DIR;
   int steps = 200;
 };
 
+namespace {
+
+// Runs one stage as `rotoscan <args...>`, echoing the command line. Returns its exit code.
+int RunStage(const Context& context, const std::string& title, const std::vector<std::string>& args) {
+  std::ostringstream line;
+  line << "rotoscan";
+  for (const auto& a : args) line << ' ' << a;
+  *context.out << "\n== " << title << "\n$ " << line.str() << "\n" << std::flush;
+  std::vector<const char*> argv{"rotoscan"};
+  if (context.progress == nullptr) argv.push_back("--no-progress");
+  for (const auto& a : args) argv.push_back(a.c_str());
+  return Main(static_cast<int>(argv.size()), argv.data(), *context.out, *context.err);
+}
+
+}  // namespace
+
 int RunDemo(const DemoOptions& options, const Context& context) {
-  *context.out << "rotoscan demo: output directory " << options.out_dir << ", " << options.steps
-               << " table steps\n";
-  const char* missing[] = {
-      "virtual scanner (rotoscan simulate): renders the calibration and scan bundles",
-      "calibration (rotoscan calibrate): camera, laser planes and table axis from the calibration bundles",
-      "processing (rotoscan process): laser lines to a colored point cloud",
-      "meshing and preview (rotoscan mesh): Poisson mesh and preview PNG",
+  namespace fs = std::filesystem;
+  const fs::path data(options.data_dir);
+  const fs::path out(options.out_dir);
+  for (const char* needed :
+       {"scenes/calibration.json", "scenes/calibration-2.json", "scenes/spot.json", "meshes/spot/spot.obj"}) {
+    if (!fs::exists(data / needed)) {
+      *context.err << "rotoscan demo: " << (data / needed).string()
+                   << " not found: pass --data <the repository's data/ directory>\n";
+      return kExitFailure;
+    }
+  }
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  if (ec) {
+    *context.err << "rotoscan demo: cannot create " << out.string() << ": " << ec.message() << "\n";
+    return kExitFailure;
+  }
+  const std::string calib_bundle_a = (out / "calibration-bundle-a").string();
+  const std::string calib_bundle_b = (out / "calibration-bundle-b").string();
+  const std::string scan_bundle = (out / "scan-bundle").string();
+  const std::string calib = (out / "calib.yaml").string();
+  const std::string cloud = (out / "cloud.ply").string();
+  const std::string mesh = (out / "mesh.ply").string();
+  const std::string preview = (out / "preview.png").string();
+
+  struct Stage {
+    std::string title;
+    std::vector<std::string> args;
   };
-  *context.err << "rotoscan demo: the full scan cannot run yet; stages not built:\n";
-  for (const char* stage : missing) *context.err << "  - " << stage << "\n";
-  return kExitNotBuilt;
+  const std::vector<Stage> stages = {
+      // Two placements of the board on the table, each turned through 24 angles: one placement leaves the
+      // laser planes nearly undetermined (the planes contain the axis; see data/scenes/calibration.json).
+      {"1/7 render calibration bundle A (checkerboard standing on the table, turned, lasers on/off)",
+       {"simulate", (data / "scenes/calibration.json").string(), "--kind", "table-checkerboard", "--steps", "24",
+        "--out", calib_bundle_a, "--overwrite"}},
+      {"2/7 render calibration bundle B (the board placed elsewhere on the table)",
+       {"simulate", (data / "scenes/calibration-2.json").string(), "--kind", "table-checkerboard", "--steps",
+        "24", "--out", calib_bundle_b, "--overwrite"}},
+      {"3/7 calibrate camera, laser planes and table axis",
+       {"calibrate", calib_bundle_a, calib_bundle_b, "--out", calib, "--report",
+        (out / "calib-report.json").string()}},
+      {"4/7 render the scan of Spot (" + std::to_string(options.steps) + " steps, both lasers)",
+       {"simulate", (data / "scenes/spot.json").string(), "--kind", "scan", "--steps",
+        std::to_string(options.steps), "--out", scan_bundle, "--overwrite"}},
+      {"5/7 process the scan into a colored point cloud",
+       {"process", scan_bundle, "--calib", calib, "--out", cloud}},
+      {"6/7 mesh and preview", {"mesh", cloud, "--out", mesh, "--preview", preview, "--depth", "8"}},
+      {"7/7 compare with the true surface", {"evaluate", cloud, "--truth", scan_bundle}},
+  };
+  bool calibration_warning = false;
+  fs::remove(calib, ec);  // so that a calib.yaml found after stage 3 is this run's
+  for (const Stage& stage : stages) {
+    const int code = RunStage(context, stage.title, stage.args);
+    if (code == kExitFailure && stage.args.front() == "calibrate" && fs::exists(calib)) {
+      // The calibration was written but did not pass its checks (the report above says why): go on with
+      // it, as a person would to see what it gives, and say so at the end.
+      calibration_warning = true;
+      continue;
+    }
+    if (code == kExitNotBuilt && stage.args.front() == "evaluate") {
+      *context.out << "(evaluation is not built yet: skipped)\n";
+      continue;
+    }
+    if (code != kExitOk) {
+      *context.err << "rotoscan demo: stopped at stage \"" << stage.title << "\" (exit code " << code << ")\n";
+      return code;
+    }
+  }
+  if (calibration_warning) {
+    *context.out << "\nnote: the calibration did not pass all its checks (see stage 3); the scan used it anyway.\n";
+  }
+  *context.out << "\nrotoscan demo: done. Point cloud " << cloud << ", mesh " << mesh << ", preview " << preview
+               << "\n";
+  return kExitOk;
 }
 
 void RegisterDemo(CLI::App& app, const Context& context, int* exit_code) {
   auto options = std::make_shared<DemoOptions>();
   CLI::App* sub = app.add_subcommand(
-      "demo",
-      "Full virtual scan: calibrate, scan the Spot model, process, mesh, preview (the README's main job)");
+      "demo", "Full virtual scan: calibrate, scan the Spot model, process, mesh, preview (the README's main job)");
   sub->add_option("--out", options->out_dir, "output directory")->capture_default_str();
+  sub->add_option("--data", options->data_dir, "the repository's data/ directory (scenes, meshes)")
+      ->capture_default_str();
   sub->add_option("--steps", options->steps, "table steps over 360 degrees")
       ->capture_default_str()
       ->check(CLI::Range(4, 100000));

@@ -1,28 +1,180 @@
 // rotoscan device: bench work with the scanner board (list, info, ping, move, laser).
-#include <ostream>
+#include "device.h"
 
-#include "command.h"
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <memory>
+#include <ostream>
+#include <vector>
+
+#include "rotoscan/device/client.h"
+#include "rotoscan/device/transport.h"
 
 namespace rotoscan::cli {
+
+namespace {
+
+Result<std::unique_ptr<device::Client>> ConnectBoard(const DeviceOptions& options) {
+  if (options.bus < 0 || options.address < 0) return InvalidArgumentError("--bus and --address must be >= 0");
+  if (!(options.ack_timeout_ms > 0)) return InvalidArgumentError("--ack-timeout must be > 0 ms");
+  device::LibusbTransportOptions usb;
+  usb.bus = options.bus;
+  usb.address = options.address;
+  Result<std::unique_ptr<device::Transport>> transport = device::MakeLibusbTransport(usb);
+  if (!transport.ok()) return transport.status();
+  ROTOSCAN_RETURN_IF_ERROR((*transport)->Open());
+  device::ClientOptions client;
+  client.ack_timeout_us = static_cast<int64_t>(options.ack_timeout_ms * 1000);
+  client.reconnect_timeout_us = 0;  // bench commands fail at once when the board goes away
+  return device::Client::Connect(std::move(transport).value(), client);
+}
+
+std::string Capabilities(uint32_t caps) {
+  static const std::pair<uint32_t, const char*> kNames[] = {
+      {1u << 0, "stepper"}, {1u << 1, "lasers"},       {1u << 2, "trigger-out"}, {1u << 3, "exposure-in"},
+      {1u << 4, "program"}, {1u << 5, "laser-safety"}, {1u << 31, "simulated"}};
+  std::string out;
+  for (const auto& [bit, name] : kNames) {
+    if (caps & bit) out += (out.empty() ? "" : " ") + std::string(name);
+  }
+  return out.empty() ? "none" : out;
+}
+
+}  // namespace
+
+int RunDeviceList(const Context& context) {
+  Result<std::vector<device::UsbBoard>> boards = device::ListUsbBoards();
+  if (!boards.ok()) return ReportStatus(context, "device list", boards.status());
+  if (boards->empty()) {
+    return ReportStatus(context, "device list", NotFoundError("no Rotoscan board found"));
+  }
+  for (const device::UsbBoard& b : *boards) {
+    *context.out << "bus " << b.bus << " address " << b.address << " port " << b.port_path << " usb "
+                 << std::hex << std::setfill('0') << std::setw(4) << b.vendor_id << ":" << std::setw(4)
+                 << b.product_id << std::dec << std::setfill(' ') << "\n";
+  }
+  return kExitOk;
+}
+
+int RunDeviceInfo(const Context& context, const DeviceOptions& options) {
+  auto client = ConnectBoard(options);
+  if (!client.ok()) return ReportStatus(context, "device info", client.status());
+  const device::DeviceInfo& info = (*client)->info();
+  *context.out << "board:        " << (*client)->transport().Description() << "\n"
+               << "protocol:     " << info.protocol_major << "." << info.protocol_minor << "\n"
+               << "firmware:     " << info.firmware_version << "\n"
+               << "serial:       " << info.uid << "\n"
+               << "capabilities: " << Capabilities(info.capabilities) << "\n"
+               << "max shots:    " << info.max_shots << " per step\n";
+  return kExitOk;
+}
+
+int RunDevicePing(const Context& context, const DeviceOptions& options, int count) {
+  if (count < 3) return ReportStatus(context, "device ping", InvalidArgumentError("--count must be >= 3"));
+  auto client = ConnectBoard(options);
+  if (!client.ok()) return ReportStatus(context, "device ping", client.status());
+  std::vector<device::PingSample> samples;
+  for (int i = 0; i < count; ++i) {
+    auto sample = (*client)->Ping();
+    if (!sample.ok()) return ReportStatus(context, "device ping", sample.status());
+    samples.push_back(*sample);
+  }
+  std::vector<int64_t> trips;
+  for (const auto& s : samples) trips.push_back(s.host_receive_us - s.host_send_us);
+  std::sort(trips.begin(), trips.end());
+  *context.out << count << " pings: round trip min " << trips.front() << " us, median "
+               << trips[trips.size() / 2] << " us, max " << trips.back() << " us\n";
+  auto fit = device::FitClock(samples);
+  if (fit.ok()) {
+    *context.out << "clock: board = host + " << std::fixed << std::setprecision(1) << fit->offset_us
+                 << " us, drift " << std::setprecision(2) << fit->drift * 1e6 << " ppm (from "
+                 << fit->samples_used << " fastest pings, residual " << std::setprecision(1)
+                 << fit->residual_rms_us << " us)\n";
+  } else {
+    *context.out << "clock: " << fit.status().message() << "\n";
+  }
+  return kExitOk;
+}
+
+int RunDeviceMove(const Context& context, const DeviceOptions& options, double degrees, int steps_per_rev) {
+  if (!std::isfinite(degrees) || std::abs(degrees) > 36000) {
+    return ReportStatus(context, "device move",
+                        InvalidArgumentError("the angle must be within +-36000 degrees"));
+  }
+  if (steps_per_rev <= 0) {
+    return ReportStatus(context, "device move", InvalidArgumentError("--steps-per-rev must be > 0"));
+  }
+  const auto steps = static_cast<int32_t>(std::lround(degrees / 360.0 * steps_per_rev));
+  auto client = ConnectBoard(options);
+  if (!client.ok()) return ReportStatus(context, "device move", client.status());
+  Status status = (*client)->EnableMotor(true);
+  if (!status.ok()) return ReportStatus(context, "device move", status);
+  // Generous: the slowest configurable profile is 1 step/s.
+  auto done = (*client)->MoveAndWait(steps, (std::abs(static_cast<int64_t>(steps)) + 10) * 1'000'000);
+  if (!done.ok()) return ReportStatus(context, "device move", done.status());
+  *context.out << "moved " << steps << " steps (" << degrees << " deg); table at " << done->position
+               << " steps\n";
+  return kExitOk;
+}
+
+int RunDeviceLaser(const Context& context, const DeviceOptions& options, const std::string& which) {
+  uint8_t mask;
+  if (which == "left") {
+    mask = device::kLaserLeft;
+  } else if (which == "right") {
+    mask = device::kLaserRight;
+  } else if (which == "both") {
+    mask = device::kLaserLeft | device::kLaserRight;
+  } else if (which == "off") {
+    mask = 0;
+  } else {
+    return ReportStatus(context, "device laser",
+                        InvalidArgumentError("laser must be left, right, both or off, not '" + which + "'"));
+  }
+  auto client = ConnectBoard(options);
+  if (!client.ok()) return ReportStatus(context, "device laser", client.status());
+  Status status = (*client)->SetLasers(mask);
+  if (!status.ok()) return ReportStatus(context, "device laser", status);
+  *context.out << "lasers: " << which << (mask ? " (the board turns them off after its laser timeout)" : "")
+               << "\n";
+  return kExitOk;
+}
 
 void RegisterDevice(CLI::App& app, const Context& context, int* exit_code) {
   CLI::App* sub = app.add_subcommand("device", "Talk to the scanner board: list, info, ping, move, laser");
   sub->require_subcommand(1);
-  const char* actions[][2] = {
-      {"list", "List connected scanner boards"},
-      {"info", "Show the board's firmware version and capabilities"},
-      {"ping", "Measure the round trip and the clock offset to the board"},
-      {"move", "Turn the table by an angle in degrees"},
-      {"laser", "Switch the lasers (left, right, both, off)"},
+  static DeviceOptions options;
+  static int count = 20;
+  static double degrees = 0;
+  static int steps_per_rev = 3200;
+  static std::string which;
+  auto add_common = [](CLI::App* command) {
+    command->add_option("--bus", options.bus, "USB bus of the board (with --address, when several)");
+    command->add_option("--address", options.address, "USB address of the board");
+    command->add_option("--ack-timeout", options.ack_timeout_ms, "ms to wait for an answer before resending");
   };
-  for (const auto& action : actions) {
-    CLI::App* command = sub->add_subcommand(action[0], action[1]);
-    const std::string name = std::string("device ") + action[0];
-    command->callback([&context, exit_code, name] {
-      *exit_code =
-          NotBuilt(context, name, "the device client (issue: Wire protocol, firmware core, device client)");
-    });
-  }
+  sub->add_subcommand("list", "List connected scanner boards")->callback([&context, exit_code] {
+    *exit_code = RunDeviceList(context);
+  });
+  CLI::App* info = sub->add_subcommand("info", "Show the board's firmware version and capabilities");
+  add_common(info);
+  info->callback([&context, exit_code] { *exit_code = RunDeviceInfo(context, options); });
+  CLI::App* ping = sub->add_subcommand("ping", "Measure the round trip and the clock offset to the board");
+  add_common(ping);
+  ping->add_option("--count", count, "number of round trips (>= 3)");
+  ping->callback([&context, exit_code] { *exit_code = RunDevicePing(context, options, count); });
+  CLI::App* move = sub->add_subcommand("move", "Turn the table by an angle in degrees");
+  add_common(move);
+  move->add_option("degrees", degrees, "angle, degrees (negative: the other way)")->required();
+  move->add_option("--steps-per-rev", steps_per_rev,
+                   "motor steps per table revolution (microsteps included)");
+  move->callback(
+      [&context, exit_code] { *exit_code = RunDeviceMove(context, options, degrees, steps_per_rev); });
+  CLI::App* laser = sub->add_subcommand("laser", "Switch the lasers (left, right, both, off)");
+  add_common(laser);
+  laser->add_option("which", which, "left, right, both or off")->required();
+  laser->callback([&context, exit_code] { *exit_code = RunDeviceLaser(context, options, which); });
 }
 
 }  // namespace rotoscan::cli

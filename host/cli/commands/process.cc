@@ -2,20 +2,82 @@
 #include <ostream>
 
 #include "command.h"
+#include "rotoscan/bundle/truth.h"
+#include "rotoscan/cloud/cloud.h"
+#include "rotoscan/geometry/rig.h"
+#include "rotoscan/pipeline/process.h"
 
 namespace rotoscan::cli {
+
+struct ProcessCommandOptions {
+  std::string bundle, calib, out;
+  std::string estimator = "com";
+  int threads = 0;
+  bool no_merge = false;
+  std::string lasers = "both";
+  double min_quality = 0.0;
+};
+
+int RunProcess(const ProcessCommandOptions& o, const Context& context) {
+  auto fail = [&](const Status& s) { return ReportStatus(context, "process", s); };
+  if (o.bundle.empty() || o.out.empty()) {
+    *context.err << "rotoscan process: a bundle and --out are required\n";
+    return kExitUsage;
+  }
+  pipeline::ProcessOptions options;
+  auto estimator = laser::ParseEstimator(o.estimator);
+  if (!estimator.ok()) return fail(estimator.status());
+  options.extract.estimator = *estimator;
+  options.threads = o.threads;
+  options.merge = !o.no_merge;
+  options.min_quality = static_cast<float>(o.min_quality);
+  if (o.lasers == "left") {
+    options.use_laser[1] = false;
+  } else if (o.lasers == "right") {
+    options.use_laser[0] = false;
+  } else if (o.lasers != "both") {
+    return fail(InvalidArgumentError("--lasers must be left, right or both"));
+  }
+  std::filesystem::path calib = o.calib;
+  if (calib.empty()) {
+    const std::filesystem::path truth = bundle::TruthRigPath(o.bundle);
+    std::error_code ec;
+    if (!std::filesystem::exists(truth, ec)) {
+      return fail(InvalidArgumentError("no --calib given and the bundle has no " + truth.string() +
+                                       " (ground truth of the virtual scanner) to fall back on"));
+    }
+    *context.err << "rotoscan process: no --calib given: using the bundle's ground-truth rig "
+                 << truth.string() << " (only a virtual scanner's bundle has one)\n";
+    calib = truth;
+  }
+  auto rig = geometry::ReadRigYaml(calib);
+  if (!rig.ok()) return fail(rig.status().WithContext("reading " + calib.string()));
+  auto result = pipeline::ProcessBundle(o.bundle, *rig, options, context.progress);
+  if (!result.ok()) return fail(result.status().WithContext(o.bundle));
+  const Status written = cloud::WritePly(o.out, result->cloud);
+  if (!written.ok()) return fail(written);
+  *context.out << pipeline::FormatSummary(result->summary) << "wrote " << result->cloud.size()
+               << " points to " << o.out << "\n";
+  return kExitOk;
+}
 
 void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
   CLI::App* sub = app.add_subcommand(
       "process", "Turn a scan bundle and a calibration into a colored point cloud (cloud.ply)");
-  static std::string bundle, calib, out;
-  sub->add_option("bundle", bundle, "scan bundle directory");
-  sub->add_option("--calib", calib, "calibration (calib.yaml)");
-  sub->add_option("--out", out, "output point cloud (PLY)");
-  sub->callback([&context, exit_code] {
-    *exit_code =
-        NotBuilt(context, "process", "processing (issue: Laser line extraction, triangulation, color)");
-  });
+  static ProcessCommandOptions o;
+  o = ProcessCommandOptions{};  // Main() may run more than once in a process (tests)
+  sub->add_option("bundle", o.bundle, "scan bundle directory");
+  sub->add_option("--calib", o.calib,
+                  "calibration (calib.yaml); without it the bundle's truth/rig.yaml is used, if it has one");
+  sub->add_option("--out", o.out, "output point cloud (PLY)");
+  sub->add_option("--estimator", o.estimator, "sub-pixel estimator: com, parabolic, gaussian, zero-crossing")
+      ->capture_default_str();
+  sub->add_option("--threads", o.threads, "worker threads (0: all cores)")->capture_default_str();
+  sub->add_option("--lasers", o.lasers, "left, right or both")->capture_default_str();
+  sub->add_option("--min-quality", o.min_quality, "drop points of lower quality (0..1)")
+      ->capture_default_str();
+  sub->add_flag("--no-merge", o.no_merge, "keep both lasers' points where they overlap");
+  sub->callback([&context, exit_code] { *exit_code = RunProcess(o, context); });
 }
 
 }  // namespace rotoscan::cli

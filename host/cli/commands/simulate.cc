@@ -1,19 +1,58 @@
-// rotoscan simulate: Render scan or calibration bundles on the virtual scanner (with ground truth)
+// rotoscan simulate: Render scan or calibration bundles on the virtual scanner (with ground truth).
+//   rotoscan simulate SCENE.json --out DIR [--kind scan|calib-object|checkerboard|table-checkerboard]
+//                    [--steps N] [--threads N] [--overwrite] [--no-truth]
+#include <memory>
 #include <ostream>
 
 #include "command.h"
+#include "rotoscan/sim/scene.h"
+#include "rotoscan/sim/simulate.h"
 
 namespace rotoscan::cli {
 
+struct SimulateCommandOptions {
+  std::string scene;
+  std::string out;
+  std::string kind = "scan";
+  int steps = 0;
+  int threads = 0;
+  bool overwrite = false;
+  bool no_truth = false;
+};
+
+int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
+  auto kind = sim::ParseSimulateKind(options.kind);
+  if (!kind.ok()) return ReportStatus(context, "simulate", kind.status());
+  auto scene = sim::LoadScene(options.scene);
+  if (!scene.ok()) return ReportStatus(context, "simulate", scene.status());
+  sim::SimulateOptions sim_options;
+  sim_options.out = options.out;
+  sim_options.kind = *kind;
+  sim_options.steps = options.steps;
+  sim_options.threads = options.threads;
+  sim_options.overwrite = options.overwrite;
+  sim_options.truth = !options.no_truth;
+  const Status status = sim::Simulate(*scene, sim_options, context.progress);
+  if (!status.ok()) return ReportStatus(context, "simulate", status);
+  *context.out << "rotoscan simulate: wrote " << options.kind << " bundle " << options.out << "\n";
+  return kExitOk;
+}
+
 void RegisterSimulate(CLI::App& app, const Context& context, int* exit_code) {
+  auto options = std::make_shared<SimulateCommandOptions>();
   CLI::App* sub = app.add_subcommand(
       "simulate", "Render scan or calibration bundles on the virtual scanner (with ground truth)");
-  static std::string scene, out;
-  sub->add_option("scene", scene, "scene description (JSON)");
-  sub->add_option("--out", out, "output bundle directory");
-  sub->callback([&context, exit_code] {
-    *exit_code = NotBuilt(context, "simulate", "the virtual scanner (issue: Virtual scanner)");
-  });
+  sub->add_option("scene", options->scene, "scene description (JSON, see sim/scene.h)")->required();
+  sub->add_option("--out", options->out, "output bundle directory")->required();
+  sub->add_option("--kind", options->kind, "scan, calib-object, checkerboard or table-checkerboard")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"scan", "calib-object", "checkerboard", "table-checkerboard"}));
+  sub->add_option("--steps", options->steps, "table steps (scan) or poses/angles (calibration); 0: default")
+      ->check(CLI::Range(0, 1000000));
+  sub->add_option("--threads", options->threads, "render threads (0: all cores)")->check(CLI::Range(0, 1024));
+  sub->add_flag("--overwrite", options->overwrite, "replace an existing bundle");
+  sub->add_flag("--no-truth", options->no_truth, "do not write truth/");
+  sub->callback([options, &context, exit_code] { *exit_code = RunSimulate(*options, context); });
 }
 
 }  // namespace rotoscan::cli

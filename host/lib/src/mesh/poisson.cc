@@ -27,6 +27,19 @@ Status PoissonOptions::Check() const {
   return Status::Ok();
 }
 
+ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud) {
+  ColoredPoints out;
+  out.points.reserve(cloud.size());
+  out.normals.reserve(cloud.size());
+  out.colors.reserve(cloud.size());
+  for (const cloud::CloudPoint& p : cloud.points) {
+    out.points.push_back(p.position_in_table.cast<double>());
+    out.normals.push_back(p.normal.cast<double>());
+    out.colors.emplace_back(p.color[0] / 255.0, p.color[1] / 255.0, p.color[2] / 255.0);
+  }
+  return out;
+}
+
 namespace {
 
 TriangleMesh FromOpen3d(const open3d::geometry::TriangleMesh& in) {

@@ -14,6 +14,7 @@
 #include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 
+#include "rotoscan/cloud/cloud.h"
 #include "rotoscan/core/progress.h"
 #include "rotoscan/core/status.h"
 
@@ -25,6 +26,9 @@ struct ColoredPoints {
   std::vector<Eigen::Vector3d> normals;  // empty, or one per point
   std::vector<Eigen::Vector3d> colors;   // empty, or one per point (RGB)
 };
+
+// A scan's cloud as meshing input: positions, normals (zero ones are estimated) and colors.
+ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud);
 
 struct TriangleMesh {
   std::vector<Eigen::Vector3d> vertices;       // mm

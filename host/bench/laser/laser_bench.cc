@@ -1,0 +1,270 @@
+// Extraction + triangulation speed at 1288x964, 8-bit, one core (DESIGN.md "Targets": >= 3,000 laser
+// frames/s, >= 20x a straightforward OpenCV centre-of-mass pipeline, within 2x of the memory-bandwidth
+// bound). All in one run so the figures are comparable:
+//
+//   BM_ExtractTriangulate/<estimator>  our extractor + triangulation (distorted camera, both planes)
+//   BM_ExtractBgr                      the same on 3-channel BGR frames (channel split included)
+//   BM_HorusBaseline                   what bq Horus does, with whole-image OpenCV operations as Horus does
+//                                      with NumPy: subtract, threshold, blur, a window around each row's
+//                                      maximum, centre of mass by a weight matrix, undistortPoints, plane
+//   BM_OpenCvTunedBaseline             the same with a per-row window loop (faster than Horus; reported too)
+//   BM_StreamRead                      the memory-bandwidth bound: a plain streaming read of the same bytes
+//                                      (both frames), i.e. the fastest any single-pass extractor could go
+//
+// Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
+// 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows.
+// Run: build-e/host/bench/laser/laser_bench --benchmark_counters_tabular=true
+#include <benchmark/benchmark.h>
+#include <emmintrin.h>
+
+#include <cmath>
+#include <vector>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rotoscan/geometry/camera.h"
+#include "rotoscan/geometry/plane.h"
+#include "rotoscan/laser/extract.h"
+#include "rotoscan/laser/triangulate.h"
+#include "synthetic_line.h"
+
+namespace {
+
+using rotoscan::laser::testing::LineSpec;
+
+constexpr int kWidth = 1288;
+constexpr int kHeight = 964;
+constexpr int kPairs = 16;
+
+struct Frames {
+  std::vector<cv::Mat> on, off;
+};
+
+const Frames& GrayFrames() {
+  static const Frames frames = [] {
+    Frames f;
+    LineSpec spec;
+    spec.amplitude = 400;
+    spec.sigma = 2.0;
+    spec.flat_half_width = 3.5;
+    for (int i = 0; i < kPairs; ++i) {
+      cv::Mat on, off;
+      rotoscan::laser::testing::MakePair(
+          kWidth, kHeight, spec, [i](int r) { return 644.0 + 150.0 * std::sin(r * 0.01 + i); }, 100 + i, &on,
+          &off);
+      f.on.push_back(on);
+      f.off.push_back(off);
+    }
+    return f;
+  }();
+  return frames;
+}
+
+const Frames& BgrFrames() {
+  static const Frames frames = [] {
+    Frames f;
+    const Frames& gray = GrayFrames();
+    for (int i = 0; i < kPairs / 2; ++i) {
+      cv::Mat on, off;
+      const cv::Mat green(kHeight, kWidth, CV_8UC1, cv::Scalar(90));
+      cv::merge(std::vector<cv::Mat>{green, green, gray.on[i]}, on);
+      cv::merge(std::vector<cv::Mat>{green, green, gray.off[i]}, off);
+      f.on.push_back(on);
+      f.off.push_back(off);
+    }
+    return f;
+  }();
+  return frames;
+}
+
+rotoscan::geometry::CameraModel Camera() {
+  rotoscan::geometry::CameraModel camera =
+      rotoscan::geometry::CameraModel::FromFieldOfView(kWidth, kHeight, 20.0);
+  camera.distortion = {-0.12, 0.1, 0.0005, -0.0003, 0.0};
+  return camera;
+}
+
+rotoscan::geometry::Plane Laser() {
+  return rotoscan::geometry::Plane::FromPointNormal(Eigen::Vector3d(-173.2, 0, 0),
+                                                    Eigen::Vector3d(300, 0, -173.2));
+}
+
+void SetCounters(benchmark::State& state, size_t bytes_per_frame) {
+  state.SetItemsProcessed(state.iterations());  // items = laser frames
+  state.SetBytesProcessed(static_cast<int64_t>(state.iterations() * bytes_per_frame));
+  state.counters["frames_per_s"] =
+      benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+
+void BM_ExtractTriangulate(benchmark::State& state) {
+  const Frames& f = GrayFrames();
+  rotoscan::laser::ExtractOptions options;
+  options.estimator = static_cast<rotoscan::laser::Estimator>(state.range(0));
+  rotoscan::laser::LineExtractor extractor(options);
+  static const rotoscan::laser::Triangulator triangulator(Camera());
+  const rotoscan::geometry::Plane plane = Laser();
+  rotoscan::laser::Line line;
+  std::vector<Eigen::Vector3d> points;
+  std::vector<int> kept;
+  size_t i = 0, total_points = 0;
+  for (auto _ : state) {
+    const rotoscan::Status status = extractor.Extract(f.on[i], f.off[i], &line);
+    benchmark::DoNotOptimize(status);
+    triangulator.Triangulate(line, plane, &points, &kept);
+    total_points += points.size();
+    benchmark::DoNotOptimize(points.data());
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * kWidth * kHeight);
+  state.counters["points_per_frame"] =
+      static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
+  state.SetLabel(rotoscan::laser::EstimatorName(options.estimator));
+}
+BENCHMARK(BM_ExtractTriangulate)->DenseRange(0, 3)->Unit(benchmark::kMicrosecond);
+
+void BM_ExtractBgr(benchmark::State& state) {
+  const Frames& f = BgrFrames();
+  rotoscan::laser::LineExtractor extractor;
+  static const rotoscan::laser::Triangulator triangulator(Camera());
+  rotoscan::laser::Line line;
+  std::vector<Eigen::Vector3d> points;
+  std::vector<int> kept;
+  size_t i = 0;
+  for (auto _ : state) {
+    const rotoscan::Status status = extractor.Extract(f.on[i], f.off[i], &line);
+    benchmark::DoNotOptimize(status);
+    triangulator.Triangulate(line, Laser(), &points, &kept);
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 6u * kWidth * kHeight);
+}
+BENCHMARK(BM_ExtractBgr)->Unit(benchmark::kMicrosecond);
+
+// A tuned OpenCV variant of the same (per-row window instead of whole-image weights): not what Horus does,
+// measured so that the speed-up is not credited to a strawman alone.
+void BM_OpenCvTunedBaseline(benchmark::State& state) {
+  const Frames& f = GrayFrames();
+  const rotoscan::geometry::CameraModel camera = Camera();
+  const cv::Mat K = (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
+  const cv::Mat dist(1, 5, CV_64F, const_cast<double*>(camera.distortion.data()));
+  const rotoscan::geometry::Plane plane = Laser();
+  cv::Mat diff, blurred;
+  std::vector<cv::Point2f> pixels, undistorted;
+  std::vector<Eigen::Vector3d> points;
+  size_t i = 0;
+  constexpr int kWindow = 10;
+  for (auto _ : state) {
+    cv::subtract(f.on[i], f.off[i], diff);
+    cv::threshold(diff, diff, 12, 0, cv::THRESH_TOZERO);
+    cv::blur(diff, blurred, cv::Size(5, 5));
+    pixels.clear();
+    for (int r = 0; r < blurred.rows; ++r) {
+      const cv::Mat row = blurred.row(r);
+      double max_value;
+      cv::Point max_at;
+      cv::minMaxLoc(row, nullptr, &max_value, nullptr, &max_at);
+      if (max_value < 12) continue;
+      const int lo = std::max(0, max_at.x - kWindow), hi = std::min(blurred.cols - 1, max_at.x + kWindow);
+      double sum = 0, sum_x = 0;
+      for (int c = lo; c <= hi; ++c) {
+        const double w = row.at<uint8_t>(0, c);
+        sum += w;
+        sum_x += w * c;
+      }
+      if (sum > 0) pixels.emplace_back(static_cast<float>(sum_x / sum), static_cast<float>(r));
+    }
+    points.clear();
+    if (!pixels.empty()) {
+      cv::undistortPoints(pixels, undistorted, K, dist);
+      for (const cv::Point2f& u : undistorted) {
+        const Eigen::Vector3d ray(u.x, u.y, 1.0);
+        points.push_back(ray * (-plane.offset / plane.normal.dot(ray)));
+      }
+    }
+    benchmark::DoNotOptimize(points.data());
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * kWidth * kHeight);
+}
+BENCHMARK(BM_OpenCvTunedBaseline)->Unit(benchmark::kMicrosecond);
+
+// bq Horus's pipeline (horus/engine/algorithms/laser_segmentation.py, "window" method) written with
+// OpenCV as Horus writes it with OpenCV + NumPy: whole-image operations only. Subtract, threshold, blur,
+// threshold again; per row the arg-max, a mask keeping a window of +-kWindow px around it; the centre of
+// mass as (weights * image).sum(axis=1) / image.sum(axis=1) in float; then undistortPoints and the
+// ray-plane intersection.
+void BM_HorusBaseline(benchmark::State& state) {
+  const Frames& f = GrayFrames();
+  const rotoscan::geometry::CameraModel camera = Camera();
+  const cv::Mat K = (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
+  const cv::Mat dist(1, 5, CV_64F, const_cast<double*>(camera.distortion.data()));
+  const rotoscan::geometry::Plane plane = Laser();
+  constexpr int kWindow = 10;
+  cv::Mat weights(kHeight, kWidth, CV_32F);
+  for (int r = 0; r < kHeight; ++r)
+    for (int c = 0; c < kWidth; ++c) weights.at<float>(r, c) = static_cast<float>(c);
+  cv::Mat diff, blurred, masked, image_f, weighted, sums, weighted_sums;
+  std::vector<cv::Point2f> pixels, undistorted;
+  std::vector<Eigen::Vector3d> points;
+  size_t i = 0;
+  for (auto _ : state) {
+    cv::subtract(f.on[i], f.off[i], diff);
+    cv::threshold(diff, diff, 12, 0, cv::THRESH_TOZERO);
+    cv::blur(diff, blurred, cv::Size(5, 5));
+    cv::threshold(blurred, blurred, 12, 0, cv::THRESH_TOZERO);
+    masked = cv::Mat::zeros(blurred.size(), CV_8U);
+    for (int r = 0; r < blurred.rows; ++r) {
+      cv::Point max_at;
+      cv::minMaxLoc(blurred.row(r), nullptr, nullptr, nullptr, &max_at);
+      const int lo = std::max(0, max_at.x - kWindow), hi = std::min(blurred.cols - 1, max_at.x + kWindow);
+      blurred(cv::Rect(lo, r, hi - lo + 1, 1)).copyTo(masked(cv::Rect(lo, r, hi - lo + 1, 1)));
+    }
+    masked.convertTo(image_f, CV_32F);
+    cv::multiply(image_f, weights, weighted);
+    cv::reduce(image_f, sums, 1, cv::REDUCE_SUM, CV_32F);
+    cv::reduce(weighted, weighted_sums, 1, cv::REDUCE_SUM, CV_32F);
+    pixels.clear();
+    for (int r = 0; r < kHeight; ++r) {
+      const float s = sums.at<float>(r, 0);
+      if (s > 0) pixels.emplace_back(weighted_sums.at<float>(r, 0) / s, static_cast<float>(r));
+    }
+    points.clear();
+    if (!pixels.empty()) {
+      cv::undistortPoints(pixels, undistorted, K, dist);
+      for (const cv::Point2f& u : undistorted) {
+        const Eigen::Vector3d ray(u.x, u.y, 1.0);
+        points.push_back(ray * (-plane.offset / plane.normal.dot(ray)));
+      }
+    }
+    benchmark::DoNotOptimize(points.data());
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * kWidth * kHeight);
+}
+BENCHMARK(BM_HorusBaseline)->Unit(benchmark::kMicrosecond);
+
+// The bound: read every byte of both frames once (SSE2 sum of absolute differences against zero, 16 bytes
+// per instruction), nothing else.
+void BM_StreamRead(benchmark::State& state) {
+  const Frames& f = GrayFrames();
+  size_t i = 0;
+  for (auto _ : state) {
+    __m128i sum = _mm_setzero_si128();
+    for (const cv::Mat* m : {&f.on[i], &f.off[i]}) {
+      const uint8_t* p = m->ptr<uint8_t>(0);
+      const size_t n = m->total() / 16 * 16;
+      for (size_t k = 0; k < n; k += 16) {
+        sum = _mm_add_epi64(
+            sum, _mm_sad_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p + k)), _mm_setzero_si128()));
+      }
+    }
+    benchmark::DoNotOptimize(sum);
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * kWidth * kHeight);
+}
+BENCHMARK(BM_StreamRead)->Unit(benchmark::kMicrosecond);
+
+}  // namespace

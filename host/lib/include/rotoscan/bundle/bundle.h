@@ -1,0 +1,197 @@
+// The scan bundle (DESIGN.md "Files"): what the capture code and the virtual scanner write, and what
+// calibration and processing read. A bundle is a directory:
+//
+//   bundle.json   the header and one record per frame (schema below)
+//   frames/       lossless PNG images, 8- or 16-bit, gray or color (RGB on disk)
+//   truth/        virtual scanner only: see bundle/truth.h
+//
+// bundle.json (format_version 1). Angles are in degrees in the file (it is meant for people) and in
+// radians in the structs below; lengths in mm, times in microseconds.
+//
+//   {
+//     "format": "rotoscan-bundle", "format_version": 1,
+//     "kind": "scan" | "calibration",
+//     "created_by": "rotoscan simulate 0.1.0",
+//     "camera": { "name": "...", "width": 1288, "height": 964, "channels": 3, "bit_depth": 8,
+//                 "bayer": false, "pixel_size_um": 3.75,
+//                 "K": [fx, 0, cx, 0, fy, cy, 0, 0, 1], "distortion": [k1, k2, p1, p2, k3],
+//                 "laser_exposure_us": 2000, "natural_exposure_us": 20000, "gain_db": 0 },
+//     "table_step_deg": 0.3,
+//     "device": { "name": "...", "serial": "...", "firmware_version": "..." },
+//     "target": { "kind": "none" | "calibration_object" | "checkerboard" | "table_checkerboard",
+//                 "cols": 9, "rows": 6, "square_mm": 10, "description": "..." },   (calibration only)
+//     "frames": [ { "file": "frames/s0000_left.png", "step": 0, "table_angle_deg": 0.0,
+//                   "laser": "left" | "right" | "off" | "natural", "trigger_seq": 0,
+//                   "device_time_us": 0, "exposure_us": 2000, "pose": -1 }, ... ]
+//   }
+//
+// The camera block is what the capture side knows (nominal intrinsics from the lens and sensor, or a
+// previous calibration), not a calibration result: calibration estimates its own. Frames are ordered by
+// (pose, step, laser: left, right, off, natural). `pose` is the calibration target pose index (-1 in scan
+// bundles). In memory, frames are OpenCV matrices in OpenCV's channel order (BGR: red is channel 2).
+//
+// Reading is hardened: every count is bounded, every field is type-checked, errors name the field and the
+// file, and a frame listed but missing on disk is kNotFound (ReadBundle with verify_frames) or reported
+// when the frame is loaded. A bundle being written lives in "<dir>.partial-<pid>" and is renamed to its
+// final name only by BundleWriter::Finish(): a reader never sees half a bundle.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+#include "rotoscan/core/status.h"
+#include "rotoscan/geometry/camera.h"
+
+namespace rotoscan::bundle {
+
+inline constexpr int kFormatVersion = 1;
+// Bounds on what a reader accepts (hardened parsing).
+inline constexpr std::size_t kMaxFrames = 1'000'000;
+inline constexpr int kMaxImageSide = 16384;
+
+enum class BundleKind { kScan, kCalibration };
+enum class LaserState { kLeft, kRight, kOff, kNatural };
+enum class TargetKind { kNone, kCalibrationObject, kCheckerboard, kTableCheckerboard };
+
+const char* BundleKindName(BundleKind kind);  // "scan", "calibration"
+const char* LaserStateName(LaserState state);  // "left", "right", "off", "natural"
+const char* TargetKindName(TargetKind kind);  // "none", "calibration_object", "checkerboard", ...
+Result<BundleKind> ParseBundleKind(const std::string& name);
+Result<LaserState> ParseLaserState(const std::string& name);
+Result<TargetKind> ParseTargetKind(const std::string& name);
+
+struct CameraInfo {
+  std::string name;                 // e.g. "virtual machine-vision 1288x964", "Logitech C270"
+  geometry::CameraModel model;      // nominal intrinsics (size, K, distortion)
+  int channels = 3;                 // 1 (gray / raw Bayer) or 3 (color)
+  int bit_depth = 8;                // 8, 10, 12 or 16 (stored in 8- or 16-bit PNG)
+  bool bayer = false;               // frames are raw RGGB mosaics (channels == 1)
+  double pixel_size_um = 0.0;       // 0: unknown
+  double laser_exposure_us = 0.0;   // exposure of the left/right/off frames
+  double natural_exposure_us = 0.0;  // exposure of the natural (color) frame
+  double gain_db = 0.0;
+};
+
+struct DeviceInfo {
+  std::string name;
+  std::string serial;
+  std::string firmware_version;
+};
+
+struct TargetInfo {
+  TargetKind kind = TargetKind::kNone;
+  int cols = 0;            // checkerboard inner corners across (0 when not a board)
+  int rows = 0;            // checkerboard inner corners down
+  double square_mm = 0.0;  // board square, or grid pitch of the calibration object
+  std::string description;
+};
+
+struct FrameRecord {
+  std::string file;               // relative to the bundle directory, e.g. "frames/s0012_left.png"
+  int step = 0;                   // table step index (>= 0)
+  double table_angle_rad = 0.0;   // table angle when the frame was exposed
+  LaserState laser = LaserState::kOff;
+  uint32_t trigger_seq = 0;       // hardware trigger sequence number
+  uint64_t device_time_us = 0;    // device timestamp of the trigger edge
+  double exposure_us = 0.0;
+  int pose = -1;                  // calibration target pose index, -1 when not applicable
+};
+
+struct BundleHeader {
+  int format_version = kFormatVersion;
+  BundleKind kind = BundleKind::kScan;
+  std::string created_by;
+  CameraInfo camera;
+  double table_step_rad = 0.0;
+  DeviceInfo device;
+  TargetInfo target;  // calibration bundles
+};
+
+struct Bundle {
+  std::filesystem::path directory;
+  BundleHeader header;
+  std::vector<FrameRecord> frames;
+  bool has_truth = false;  // a truth/ directory is present
+
+  std::filesystem::path FramePath(const FrameRecord& frame) const { return directory / frame.file; }
+  // The index of the frame with this step, laser state and pose, or -1.
+  int FindFrame(int step, LaserState laser, int pose = -1) const;
+  // Number of distinct steps (max step + 1, 0 when empty).
+  int StepCount() const;
+  std::filesystem::path TruthDirectory() const { return directory / "truth"; }
+};
+
+struct ReadOptions {
+  bool verify_frames = true;  // check that every listed frame file exists (kNotFound otherwise)
+};
+
+// Reads bundle.json of the bundle in `directory`. kNotFound when the directory or bundle.json is missing,
+// kCorruptData/kInvalidArgument naming the field when the content is wrong.
+Result<Bundle> ReadBundle(const std::filesystem::path& directory, const ReadOptions& options = {});
+
+// Loads a frame as stored (8U or 16U, 1 or 3 channels in BGR order). kNotFound if the file is missing,
+// kCorruptData if it does not decode or its size/channels disagree with the header.
+Result<cv::Mat> ReadFrame(const Bundle& bundle, const FrameRecord& frame);
+Result<cv::Mat> ReadFrame(const Bundle& bundle, std::size_t index);
+
+// Parses/serialises bundle.json content (used by the reader and writer; exposed for tests and tools).
+Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& source_name);
+std::string BundleJson(const BundleHeader& header, const std::vector<FrameRecord>& frames);
+
+// The conventional frame file name: "frames/s0012_left.png", or "frames/p03_s0012_left.png" with a pose.
+std::string FrameFileName(int step, LaserState laser, int pose = -1);
+
+// Writes a bundle: frames are written as they come (from any thread), bundle.json at Finish(), and the
+// directory appears under its final name only when Finish() succeeds. Destroyed without Finish(), the
+// writer removes its partial directory.
+class BundleWriter {
+ public:
+  struct Options {
+    bool overwrite = false;  // replace an existing bundle at the final path
+  };
+
+  // Creates "<directory>.partial-<pid>" with frames/ (and truth/). kInvalidArgument if the header is
+  // invalid, kIoError if the directory cannot be created, kFailedPrecondition if `directory` exists and
+  // overwrite is off.
+  static Result<std::unique_ptr<BundleWriter>> Create(const std::filesystem::path& directory,
+                                                     const BundleHeader& header, const Options& options);
+  static Result<std::unique_ptr<BundleWriter>> Create(const std::filesystem::path& directory,
+                                                     const BundleHeader& header) {
+    return Create(directory, header, Options{});
+  }
+  ~BundleWriter();
+  BundleWriter(const BundleWriter&) = delete;
+  BundleWriter& operator=(const BundleWriter&) = delete;
+
+  // Writes `image` (CV_8U or CV_16U, 1 or 3 channels, BGR, of the header's size) as a PNG. An empty
+  // record.file means FrameFileName(step, laser, pose). Thread-safe. kInvalidArgument for a wrong image or
+  // a duplicate file name; kIoError if the write fails.
+  Status AddFrame(FrameRecord record, const cv::Mat& image);
+
+  // The partial directory, where truth/ files may be written before Finish() (truth/ exists already).
+  const std::filesystem::path& working_directory() const { return working_; }
+  const std::filesystem::path& final_directory() const { return final_; }
+
+  // Writes bundle.json (frames sorted by pose, step, laser) and renames the directory to its final name.
+  Status Finish();
+
+ private:
+  BundleWriter(std::filesystem::path final_dir, std::filesystem::path working, BundleHeader header,
+               Options options);
+
+  std::filesystem::path final_;
+  std::filesystem::path working_;
+  BundleHeader header_;
+  Options options_;
+  std::mutex mutex_;
+  std::vector<FrameRecord> frames_;
+  bool finished_ = false;
+};
+
+}  // namespace rotoscan::bundle

@@ -1,0 +1,161 @@
+// Calibration of the whole rig (camera, both laser planes, table axis, step angle) from observations of a
+// planar target standing on the turntable: the paper's three steps (§4) as the initial value, then one
+// joint refinement of everything with Ceres.
+//
+// Observations (whatever produced them: calibration bundles, the virtual scanner, a test):
+//  * TargetView: the target's corners at one table step of one placement (a placement = one way of
+//    standing the target on the table; the target does not move on the table between steps).
+//  * LaserView: laser pixels that lie on the target's plane (z = 0 in the target frame) at one step of
+//    one placement, for one laser.
+//
+// Three-step initial value (CalibrateThreeStep): (1) intrinsics and distortion by OpenCV's calibrateCamera
+// on all target views (unless a camera is given), poses by solvePnP; (2) the table axis from the poses of
+// each placement (calib/axis_fit.h FitAxisFromPoses: direction, point, step angle), combined over
+// placements; (3) each laser plane by a robust plane fit (calib/plane_fit.h) of its pixels' rays meeting
+// the target plane.
+//
+// Joint refinement (RefineRig): minimises, with a robust (Huber) loss, the reprojection error of every
+// corner (in units of corner_sigma_px) and the laser-plane distance of every laser pixel's point on the
+// target (in units of laser_sigma_mm), over intrinsics, distortion, one pose per placement, the axis
+// (unit direction on a sphere manifold, point with a gauge residual), the table angle scale and both planes
+// (unit normals on a sphere manifold, offsets). Standard deviations come from ceres::Covariance scaled by the
+// a posteriori variance factor (2 cost / (residuals - parameters)).
+#pragma once
+
+#include <array>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "rotoscan/core/status.h"
+#include "rotoscan/geometry/camera.h"
+#include "rotoscan/geometry/rig.h"
+
+namespace rotoscan::calib {
+
+struct TargetView {
+  int placement = 0;             // which placement of the target on the table (0, 1, ...)
+  int step = 0;                  // table step index: views of one placement at one step share a pose
+  double table_angle_rad = 0.0;  // commanded table angle (the model turns by angle_scale times it)
+  std::vector<Eigen::Vector3d> corners_in_target;  // mm, target frame
+  std::vector<Eigen::Vector2d> corner_pixels;      // same order
+  std::string name;                                // for messages and the report
+};
+
+struct LaserView {
+  geometry::LaserId laser = geometry::LaserId::kLeft;
+  int placement = 0;
+  int step = 0;
+  double table_angle_rad = 0.0;         // commanded table angle
+  std::vector<Eigen::Vector2d> pixels;  // laser line centres on the target's plane
+  std::string name;
+};
+
+struct CalibrationData {
+  int image_width = 0;
+  int image_height = 0;
+  double nominal_step_rad = 0.0;  // table rotation per step as commanded (> 0); rig.step_angle_rad =
+                                  // angle_scale * nominal_step_rad
+  std::vector<TargetView> target_views;
+  std::vector<LaserView> laser_views;
+};
+
+struct RigCalibrationOptions {
+  int min_target_views = 6;      // fewer is an error saying what to capture
+  int min_table_positions = 3;   // distinct steps of one placement needed for the axis
+  int min_laser_points = 30;     // per laser
+  double laser_inlier_mm = 0.5;  // robust plane fit threshold (three-step)
+  double corner_sigma_px = 0.1;  // expected corner noise: residual unit of the joint solve
+  double laser_sigma_mm = 0.05;  // expected laser point noise along the plane normal
+  double huber_sigmas = 3.0;     // Huber loss threshold, in sigmas
+  bool refine_intrinsics = true;
+  bool refine_distortion = true;
+  bool refine_angle_scale = true;
+  int max_iterations = 100;
+  bool compute_covariance = true;
+  // Pass/fail thresholds of the report.
+  double max_rms_px = 0.5;
+  double max_view_rms_px = 1.0;
+  double max_laser_rms_mm = 0.1;
+  double max_axis_rms_mm = 0.1;
+  // ... and on the standard deviations of the joint solve (DESIGN.md's accuracy targets): a capture that
+  // cannot determine a parameter this well fails, saying what to capture.
+  double max_normal_std_deg = 0.05;
+  double max_offset_std_mm = 0.05;
+  double max_axis_std_mm = 0.05;
+  double max_axis_std_deg = 0.05;
+  Status Check() const;
+};
+
+// The rig plus what the solve needs: one pose per placement at table angle 0, and the ratio of real to
+// commanded table angles.
+struct RigEstimate {
+  geometry::Rig rig;
+  std::vector<Eigen::Isometry3d> cam_from_target0;  // per placement
+  double angle_scale = 1.0;                         // real table angle / commanded angle
+  double axis_fit_rms_mm = 0.0;                     // three-step axis fit residual (calib/axis_fit.h)
+};
+
+// The paper's three steps with OpenCV intrinsics (see the file comment). `camera`: known intrinsics to use
+// instead of estimating them. Errors say what to capture: too few target views, a placement seen at too
+// few table positions, a laser never seen or seen on one target plane only.
+Result<RigEstimate> CalibrateThreeStep(const CalibrationData& data, const RigCalibrationOptions& options,
+                                       const std::optional<geometry::CameraModel>& camera = std::nullopt);
+
+struct StdDevs {
+  std::array<double, 4> intrinsics{};        // fx fy cx cy, px
+  std::array<double, 5> distortion{};        // k1 k2 p1 p2 k3
+  std::array<double, 2> laser_normal_deg{};  // per laser: angular std dev of the normal
+  std::array<double, 2> laser_offset_mm{};
+  double axis_direction_deg = 0.0;
+  double axis_point_mm = 0.0;  // across the axis (the along-axis component is a gauge)
+  double angle_scale = 0.0;    // real / commanded table angle
+  bool valid = false;          // false when the covariance could not be computed
+};
+
+struct ViewResidual {
+  std::string name;
+  double rms_px = 0.0;
+};
+
+struct RigCalibrationSummary {
+  bool converged = false;
+  std::string termination;  // Ceres' report line
+  int iterations = 0;
+  double rms_px = 0.0;                   // all corners
+  std::vector<ViewResidual> per_view;    // per target view
+  std::array<double, 2> laser_rms_mm{};  // per laser: RMS distance of its target points from its plane
+  std::array<int, 2> laser_points{};
+  double axis_fit_rms_mm = 0.0;  // three-step axis residual (how well poses fit one rotation axis)
+  double angle_scale = 1.0;      // real / commanded table angle
+  int target_views = 0;
+  int placements = 0;
+  StdDevs std_devs;
+  bool passed = false;
+  std::vector<std::string> failures;  // why it did not pass, each saying what to do
+};
+
+struct RigCalibration {
+  RigEstimate estimate;
+  RigCalibrationSummary summary;
+};
+
+// The joint refinement from `initial` (usually CalibrateThreeStep's). kNotConverged when Ceres fails.
+Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate& initial,
+                                 const RigCalibrationOptions& options);
+
+// The summary of a rig without refining it (residuals of `estimate` on `data`): for the three-step result.
+RigCalibrationSummary Evaluate(const CalibrationData& data, const RigEstimate& estimate,
+                               const RigCalibrationOptions& options);
+
+// calib.yaml: geometry::WriteRigNodes, then the report keys (report_passed, report_failures, rms_px,
+// per_view_rms_px, per_view_names, laser_left_rms_mm, laser_right_rms_mm, axis_fit_rms_mm, angle_scale,
+// std_* ...). Atomic.
+Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibration& calibration);
+// The report as JSON (for --report).
+std::string SummaryToJson(const RigCalibrationSummary& summary);
+
+}  // namespace rotoscan::calib

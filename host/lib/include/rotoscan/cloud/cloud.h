@@ -1,0 +1,52 @@
+// The colored point cloud of a scan and its file, cloud.ply (DESIGN.md "Files"): binary little-endian
+// PLY, one vertex per point with x y z (float, mm, table frame), nx ny nz (float, unit, zero when
+// unknown), red green blue (uchar), laser (uchar: 0 left, 1 right), step (int: table step index) and
+// quality (float, 0..1).
+//
+// The reader is hardened (STYLE.md §9): every count read from the file is bounded by the bytes that are
+// really there before anything is allocated, a truncated or malformed file is kCorruptData naming the
+// file, and unknown properties are skipped. It reads binary_little_endian and ascii PLY vertex data
+// with any scalar property types (so clouds from other tools load too); x, y, z are required.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "rotoscan/core/status.h"
+
+namespace rotoscan::cloud {
+
+struct CloudPoint {
+  Eigen::Vector3f position_in_table = Eigen::Vector3f::Zero();  // mm
+  Eigen::Vector3f normal = Eigen::Vector3f::Zero();             // unit, or zero when unknown
+  std::array<uint8_t, 3> color{};                               // red, green, blue
+  uint8_t laser = 0;                                            // geometry::LaserId as a number
+  int32_t step = 0;                                             // table step index
+  float quality = 0;                                            // 0..1
+};
+
+struct PointCloud {
+  std::vector<CloudPoint> points;
+  size_t size() const { return points.size(); }
+  bool empty() const { return points.empty(); }
+};
+
+// Writes `cloud` to `path` atomically (never a partial file).
+Status WritePly(const std::filesystem::path& path, const PointCloud& cloud);
+// The bytes WritePly writes, for tests and streaming.
+std::string EncodePly(const PointCloud& cloud);
+
+struct PlyReadOptions {
+  size_t max_points = size_t{1} << 28;  // refuse files claiming more vertices than this
+  size_t max_file_bytes = size_t{1} << 33;
+};
+Result<PointCloud> ReadPly(const std::filesystem::path& path, const PlyReadOptions& options = {});
+// Decodes PLY bytes; `name` is used in error messages.
+Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
+                             const PlyReadOptions& options = {});
+
+}  // namespace rotoscan::cloud

@@ -1,0 +1,133 @@
+// Laser line extraction by differential imaging (paper §3.1): per image row, the sub-pixel column of the
+// laser line in the difference (laser-on minus laser-off) of the channel the laser lives in.
+//
+// Pixels are (column, row) with (0, 0) the centre of the top-left pixel, as in geometry/camera.h: a
+// column of 10.0 is the centre of pixel 10.
+//
+// What real frames look like (DESIGN.md): lines 7-16 px wide at half maximum, the laser-on channel
+// saturated in most rows (a flat-topped plateau in the difference), background noise of ~1.4 DN. None of
+// the estimators below assumes a narrow line; see extract.cc for how each handles a plateau and why the
+// default is what it is.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+#include "rotoscan/core/status.h"
+
+namespace rotoscan::laser {
+
+// How the sub-pixel centre is computed from the difference profile of one row.
+enum class Estimator {
+  kCenterOfMass,  // centre of mass of (d - half maximum) over the run above half maximum
+  kParabolic,     // 3-point parabola through the peak (a plateau collapsed to its middle)
+  kGaussian,      // 3-point Gaussian (parabola of log d), same plateau handling
+  kZeroCrossing,  // zero of the FIR derivative d[i+k] - d[i-k], k = half the line width
+};
+const char* EstimatorName(Estimator estimator);
+Result<Estimator> ParseEstimator(const std::string& name);  // "com", "parabolic", "gaussian", "zero-crossing"
+
+// Which channel carries the laser.
+enum class Channel { kRed, kGreen, kBlue };
+Result<Channel> ParseChannel(const std::string& name);  // "red", "green", "blue"
+
+// How the bytes of an 8-bit image are laid out. kAuto: 1 channel = gray, 3 channels = BGR (OpenCV's
+// imread order), 4 channels = BGRA. Bayer layouts are single-channel raw frames, demosaiced before use.
+enum class PixelLayout { kAuto, kGray, kBgr, kRgb, kBayerRggb, kBayerGrbg, kBayerBggr, kBayerGbrg };
+Result<PixelLayout> ParsePixelLayout(
+    const std::string& name);  // "auto", "gray", "bgr", "rgb", "bayer-rggb"...
+
+// Flags of one extracted point (bit set).
+enum LinePointFlag : uint8_t {
+  kFlagSaturated = 1,      // the laser-on channel is saturated at the peak (plateau)
+  kFlagMultiplePeaks = 2,  // another plausible peak was in the row; the most plausible one was kept
+  kFlagClipped = 4,        // the line touches the image border
+};
+
+struct LinePoint {
+  int32_t row = 0;
+  float column = 0;   // sub-pixel column of the line centre
+  float peak = 0;     // peak height of the difference, DN
+  float width = 0;    // full width at half maximum, px
+  float quality = 0;  // 0 (barely accepted) .. 1 (strong, clean, plausible width)
+  uint8_t flags = 0;  // LinePointFlag bits
+};
+
+// Why rows gave no point, and what the frame looked like.
+struct LineStats {
+  int rows = 0;
+  int found = 0;
+  int low_contrast = 0;     // peak below the detection threshold (no laser in this row)
+  int bad_width = 0;        // every candidate too narrow (glint, hot pixel) or too wide (ambient blob)
+  int off_saturated = 0;    // the laser-off frame is saturated under the peak: a specular highlight
+  int multiple_peaks = 0;   // rows flagged kFlagMultiplePeaks (also counted in found)
+  double noise_dn = 0;      // background noise of the difference used for the threshold, DN (sigma)
+  double threshold_dn = 0;  // detection threshold used, DN
+};
+
+struct Line {
+  std::vector<LinePoint> points;  // ordered by row, at most one per row
+  LineStats stats;
+};
+
+struct ExtractOptions {
+  Estimator estimator = Estimator::kCenterOfMass;  // chosen by measurement, see extract.cc
+  Channel channel = Channel::kRed;
+  PixelLayout layout = PixelLayout::kAuto;
+  // A peak must exceed max(min_contrast_dn, min_snr * noise) in the difference.
+  double min_contrast_dn = 12.0;
+  double min_snr = 8.0;
+  // Noise sigma of the difference, DN; <= 0: estimated per frame from a sparse sample of pixels.
+  double noise_dn = 0.0;
+  // Width limits (full width at half maximum, px): narrower is a glint or a hot pixel, wider a blob of
+  // ambient light or a smeared reflection.
+  double min_width_px = 1.5;
+  double max_width_px = 40.0;
+  // A second candidate whose peak is at least this fraction of the best one flags the row.
+  double multiple_peak_ratio = 0.5;
+  // Pixels of the laser-off channel at or above this value hide the laser: such peaks are rejected.
+  int off_saturation_dn = 250;
+
+  // OK, or kInvalidArgument naming the bad field.
+  Status Check() const;
+};
+
+// Extracts the line from a laser-on / laser-off pair (same size and type, 8-bit, 1, 3 or 4 channels).
+// Reuses its buffers between calls; one extractor per thread.
+class LineExtractor {
+ public:
+  explicit LineExtractor(const ExtractOptions& options = {});  // options must pass Check()
+
+  const ExtractOptions& options() const { return options_; }
+
+  // kInvalidArgument for empty images, different sizes or types, non-8-bit data, a layout that does not
+  // fit the channel count.
+  Status Extract(const cv::Mat& on, const cv::Mat& off, Line* line);
+
+  // The lower level: the laser channel of both frames, as two CV_8UC1 images (continuous or not).
+  Status ExtractFromChannel(const cv::Mat& on_channel, const cv::Mat& off_channel, Line* line);
+
+ private:
+  ExtractOptions options_;
+  std::vector<uint8_t> diff_;
+  std::vector<uint16_t> block_masks_;  // per 16 pixels of the row: bits of d >= threshold
+  cv::Mat on_channel_, off_channel_, on_bgr_, off_bgr_;
+};
+
+// One-shot convenience.
+Result<Line> ExtractLine(const cv::Mat& on, const cv::Mat& off, const ExtractOptions& options = {});
+
+// The sub-pixel centre of the peak of one difference profile, given the run [first, last] (inclusive) of
+// the candidate above half maximum and its peak value. Exposed for tests and benchmarks. Returns the
+// column, or a negative value when the estimator fails (e.g. a flat profile).
+double EstimateCentre(Estimator estimator, const uint8_t* diff, int size, int first, int last, int peak);
+
+// Reads an 8-bit image file (PNG, JPEG, ... as OpenCV decodes it, channels as stored: BGR for color).
+// kNotFound if missing, kCorruptData if it does not decode, kInvalidArgument if it is not 8-bit.
+Result<cv::Mat> ReadImage8(const std::filesystem::path& path);
+
+}  // namespace rotoscan::laser

@@ -1,0 +1,272 @@
+#include "rotoscan/calib/camera_calibration.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdio>
+#include <string>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/persistence.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rotoscan/core/check.h"
+#include "rotoscan/core/file.h"
+#include "rotoscan/core/logging.h"
+
+namespace rotoscan::calib {
+namespace {
+
+bool IsImageFile(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" || ext == ".tif" || ext == ".tiff";
+}
+
+Eigen::Isometry3d PoseFromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec) {
+  cv::Mat r;
+  cv::Rodrigues(rvec, r);
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) pose.linear()(i, j) = r.at<double>(i, j);
+    pose.translation()(i) = tvec.at<double>(i);
+  }
+  return pose;
+}
+
+}  // namespace
+
+Status CheckerboardPattern::Check() const {
+  if (cols < 3 || rows < 3) {
+    return InvalidArgumentError("checkerboard pattern must have at least 3x3 inner corners, got " +
+                                std::to_string(cols) + "x" + std::to_string(rows));
+  }
+  if (cols == rows) {
+    return InvalidArgumentError("checkerboard pattern " + std::to_string(cols) + "x" + std::to_string(rows) +
+                                " is square: its orientation is ambiguous; use a board with cols != rows");
+  }
+  if (!(square_mm > 0) || !std::isfinite(square_mm))
+    return InvalidArgumentError("square size must be > 0 mm");
+  return Status::Ok();
+}
+
+std::vector<Eigen::Vector3d> CheckerboardPattern::CornersInTarget() const {
+  std::vector<Eigen::Vector3d> corners;
+  corners.reserve(static_cast<std::size_t>(cols) * rows);
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) corners.emplace_back(c * square_mm, r * square_mm, 0.0);
+  }
+  return corners;
+}
+
+Result<CheckerboardPattern> ParsePattern(const std::string& text, double square_mm) {
+  CheckerboardPattern pattern;
+  pattern.square_mm = square_mm;
+  char x = 0;
+  char extra = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &pattern.cols, &x, &pattern.rows, &extra) != 3 ||
+      (x != 'x' && x != 'X')) {
+    return InvalidArgumentError("pattern '" + text + "' is not COLSxROWS (inner corners, e.g. 9x6)");
+  }
+  ROTOSCAN_RETURN_IF_ERROR(pattern.Check());
+  return pattern;
+}
+
+Status CameraCalibrationOptions::Check() const {
+  ROTOSCAN_RETURN_IF_ERROR(pattern.Check());
+  if (min_views < 3) return InvalidArgumentError("min_views must be >= 3");
+  return Status::Ok();
+}
+
+Result<std::vector<Eigen::Vector2d>> DetectCheckerboard(const cv::Mat& image,
+                                                        const CheckerboardPattern& pattern) {
+  ROTOSCAN_RETURN_IF_ERROR(pattern.Check());
+  if (image.empty()) return InvalidArgumentError("empty image");
+  if (image.depth() != CV_8U || (image.channels() != 1 && image.channels() != 3)) {
+    return InvalidArgumentError("checkerboard detection needs an 8-bit grey or BGR image");
+  }
+  cv::Mat gray;
+  if (image.channels() == 3) {
+    cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  } else {
+    gray = image;
+  }
+  std::vector<cv::Point2f> corners;
+  const cv::Size size(pattern.cols, pattern.rows);
+  if (!cv::findChessboardCorners(gray, size, corners,
+                                 cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE)) {
+    return NotFoundError("checkerboard " + std::to_string(pattern.cols) + "x" + std::to_string(pattern.rows) +
+                         " not found (the whole board must be visible)");
+  }
+  cv::cornerSubPix(gray, corners, cv::Size(11, 11), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 50, 1e-3));
+  std::vector<Eigen::Vector2d> out;
+  out.reserve(corners.size());
+  for (const auto& c : corners) out.emplace_back(c.x, c.y);
+  return out;
+}
+
+Result<CameraCalibration> CalibrateCamera(const std::vector<std::vector<Eigen::Vector2d>>& corner_pixels,
+                                          const std::vector<std::string>& view_names, int image_width,
+                                          int image_height, const CameraCalibrationOptions& options) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  ROTOSCAN_CHECK_EQ(corner_pixels.size(), view_names.size());
+  ROTOSCAN_CHECK(image_width > 0 && image_height > 0) << "image size " << image_width << "x" << image_height;
+  const int views = static_cast<int>(corner_pixels.size());
+  if (views < options.min_views) {
+    return InvalidArgumentError(
+        "target found in only " + std::to_string(views) +
+        " images: need >= " + std::to_string(options.min_views) +
+        " (capture the whole board at different tilts and positions across the image)");
+  }
+  const std::vector<Eigen::Vector3d> board = options.pattern.CornersInTarget();
+  std::vector<std::vector<cv::Point3f>> object_points(views);
+  std::vector<std::vector<cv::Point2f>> image_points(views);
+  for (int v = 0; v < views; ++v) {
+    ROTOSCAN_CHECK_EQ(corner_pixels[v].size(), board.size());
+    for (std::size_t i = 0; i < board.size(); ++i) {
+      object_points[v].emplace_back(static_cast<float>(board[i].x()), static_cast<float>(board[i].y()), 0.0f);
+      image_points[v].emplace_back(static_cast<float>(corner_pixels[v][i].x()),
+                                   static_cast<float>(corner_pixels[v][i].y()));
+    }
+  }
+  int flags = 0;
+  if (options.fix_aspect_ratio) flags |= cv::CALIB_FIX_ASPECT_RATIO;
+  if (options.zero_tangential) flags |= cv::CALIB_ZERO_TANGENT_DIST;
+  cv::Mat k = cv::Mat::eye(3, 3, CV_64F);
+  cv::Mat dist = cv::Mat::zeros(5, 1, CV_64F);
+  std::vector<cv::Mat> rvecs, tvecs;
+  cv::Mat std_intrinsics, std_extrinsics, per_view;
+  double rms = 0.0;
+  try {
+    rms = cv::calibrateCamera(object_points, image_points, cv::Size(image_width, image_height), k, dist,
+                              rvecs, tvecs, std_intrinsics, std_extrinsics, per_view, flags,
+                              cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
+  } catch (const cv::Exception& e) {
+    return NotConvergedError("camera calibration failed: " + e.msg);
+  }
+  CameraCalibration out;
+  out.camera.width = image_width;
+  out.camera.height = image_height;
+  out.camera.fx = k.at<double>(0, 0);
+  out.camera.fy = k.at<double>(1, 1);
+  out.camera.cx = k.at<double>(0, 2);
+  out.camera.cy = k.at<double>(1, 2);
+  for (int i = 0; i < 5; ++i) out.camera.distortion[i] = dist.at<double>(i);
+  if (!out.camera.Validate().ok() || !std::isfinite(rms)) {
+    return NotConvergedError("camera calibration gave an invalid camera: " +
+                             out.camera.Validate().ToString());
+  }
+  out.rms_px = rms;
+  out.views = view_names;
+  out.corner_pixels = corner_pixels;
+  for (int v = 0; v < views; ++v) {
+    out.per_view_rms_px.push_back(per_view.at<double>(v));
+    out.cam_from_target.push_back(PoseFromRvecTvec(rvecs[v], tvecs[v]));
+  }
+  for (int i = 0; i < 4; ++i) out.intrinsics_std[i] = std_intrinsics.at<double>(i);
+  for (int i = 0; i < 5; ++i) out.distortion_std[i] = std_intrinsics.at<double>(4 + i);
+  return out;
+}
+
+Result<CameraCalibration> CalibrateCameraFromDirectory(const std::filesystem::path& directory,
+                                                       const CameraCalibrationOptions& options,
+                                                       Progress* progress) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  std::error_code ec;
+  if (!std::filesystem::is_directory(directory, ec)) {
+    return NotFoundError("image directory " + directory.string() + " does not exist");
+  }
+  std::vector<std::filesystem::path> files;
+  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
+    if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
+  }
+  if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
+  std::sort(files.begin(), files.end());
+  if (files.empty()) {
+    return NotFoundError("no images (png, jpg, bmp, tif) in " + directory.string() + ": capture at least " +
+                         std::to_string(options.min_views) + " views of the checkerboard");
+  }
+  ProgressScope scope(progress, "checkerboard", files.size());
+  std::vector<std::vector<Eigen::Vector2d>> corners;
+  std::vector<std::string> names;
+  std::vector<std::string> rejected;
+  int width = 0, height = 0, readable = 0;
+  for (const auto& file : files) {
+    if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
+    scope.Advance();
+    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
+    const std::string name = file.filename().string();
+    if (image.empty()) {
+      rejected.push_back(name + ": unreadable image");
+      ROTOSCAN_LOG(kWarning) << name << ": unreadable image, skipped";
+      continue;
+    }
+    ++readable;
+    if (width == 0) {
+      width = image.cols;
+      height = image.rows;
+    } else if (image.cols != width || image.rows != height) {
+      return InvalidArgumentError(name + " is " + std::to_string(image.cols) + "x" +
+                                  std::to_string(image.rows) + " but the first image is " +
+                                  std::to_string(width) + "x" + std::to_string(height) +
+                                  ": all views must come from the same camera mode");
+    }
+    Result<std::vector<Eigen::Vector2d>> found = DetectCheckerboard(image, options.pattern);
+    if (!found.ok()) {
+      rejected.push_back(name + ": " + found.status().message());
+      ROTOSCAN_LOG(kInfo) << name << ": " << found.status().message();
+      continue;
+    }
+    corners.push_back(std::move(found).value());
+    names.push_back(name);
+  }
+  if (readable == 0) {
+    return CorruptDataError("none of the " + std::to_string(files.size()) + " image files in " +
+                            directory.string() + " could be read");
+  }
+  if (static_cast<int>(corners.size()) < options.min_views) {
+    return InvalidArgumentError(
+        "target found in only " + std::to_string(corners.size()) + " of " + std::to_string(files.size()) +
+        " images in " + directory.string() + ": need >= " + std::to_string(options.min_views) +
+        " (check --pattern " + std::to_string(options.pattern.cols) + "x" +
+        std::to_string(options.pattern.rows) +
+        " counts inner corners, and capture the whole board, sharp, at different tilts)");
+  }
+  Result<CameraCalibration> result = CalibrateCamera(corners, names, width, height, options);
+  if (result.ok()) result->rejected = rejected;
+  return result;
+}
+
+Status WriteCameraYaml(const std::filesystem::path& path, const CameraCalibration& calibration) {
+  ROTOSCAN_RETURN_IF_ERROR(calibration.camera.Validate().WithContext("refusing to write " + path.string()));
+  return WriteAtomically(path, [&](const std::filesystem::path& tmp) -> Status {
+    try {
+      cv::FileStorage fs(tmp.string(), cv::FileStorage::WRITE | cv::FileStorage::FORMAT_YAML);
+      if (!fs.isOpened()) return IoError("cannot create " + tmp.string());
+      const geometry::CameraModel& c = calibration.camera;
+      fs << "image_width" << c.width << "image_height" << c.height;
+      fs << "K" << (cv::Mat_<double>(3, 3) << c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1);
+      fs << "distortion" << cv::Mat(std::vector<double>(c.distortion.begin(), c.distortion.end()), true);
+      fs << "rms_px" << calibration.rms_px;
+      fs << "per_view_rms_px" << cv::Mat(calibration.per_view_rms_px, true);
+      fs << "views"
+         << "[";
+      for (const auto& v : calibration.views) fs << v;
+      fs << "]";
+      fs << "intrinsics_std"
+         << cv::Mat(std::vector<double>(calibration.intrinsics_std.begin(), calibration.intrinsics_std.end()),
+                    true);
+      fs << "distortion_std"
+         << cv::Mat(std::vector<double>(calibration.distortion_std.begin(), calibration.distortion_std.end()),
+                    true);
+      fs.release();
+    } catch (const cv::Exception& e) {
+      return IoError("writing " + path.string() + ": " + e.msg);
+    }
+    return Status::Ok();
+  });
+}
+
+}  // namespace rotoscan::calib

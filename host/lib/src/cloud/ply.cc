@@ -1,0 +1,274 @@
+// PLY writer and hardened reader (see cloud/cloud.h). Values are encoded and decoded byte by byte in
+// little endian, never by casting structs, so the file is the same on any host.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "rotoscan/cloud/cloud.h"
+#include "rotoscan/core/file.h"
+
+namespace rotoscan::cloud {
+namespace {
+
+void PutU32(std::string* out, uint32_t v) {
+  for (int i = 0; i < 4; ++i) out->push_back(static_cast<char>((v >> (8 * i)) & 0xFF));
+}
+void PutFloat(std::string* out, float f) {
+  uint32_t bits;
+  std::memcpy(&bits, &f, 4);
+  PutU32(out, bits);
+}
+
+enum class Type { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
+
+bool ParseType(const std::string& name, Type* type, int* bytes) {
+  struct Entry {
+    const char* name;
+    Type type;
+    int bytes;
+  };
+  static const Entry kTypes[] = {
+      {"char", Type::kInt8, 1},      {"int8", Type::kInt8, 1},       {"uchar", Type::kUint8, 1},
+      {"uint8", Type::kUint8, 1},    {"short", Type::kInt16, 2},     {"int16", Type::kInt16, 2},
+      {"ushort", Type::kUint16, 2},  {"uint16", Type::kUint16, 2},   {"int", Type::kInt32, 4},
+      {"int32", Type::kInt32, 4},    {"uint", Type::kUint32, 4},     {"uint32", Type::kUint32, 4},
+      {"float", Type::kFloat32, 4},  {"float32", Type::kFloat32, 4}, {"double", Type::kFloat64, 8},
+      {"float64", Type::kFloat64, 8}};
+  for (const Entry& e : kTypes) {
+    if (name == e.name) {
+      *type = e.type;
+      *bytes = e.bytes;
+      return true;
+    }
+  }
+  return false;
+}
+
+double DecodeBinary(const unsigned char* p, Type type) {
+  uint64_t v = 0;
+  auto load = [&](int n) {
+    v = 0;
+    for (int i = 0; i < n; ++i) v |= uint64_t{p[i]} << (8 * i);
+  };
+  switch (type) {
+    case Type::kInt8: return static_cast<int8_t>(p[0]);
+    case Type::kUint8: return p[0];
+    case Type::kInt16: load(2); return static_cast<int16_t>(static_cast<uint16_t>(v));
+    case Type::kUint16: load(2); return static_cast<uint16_t>(v);
+    case Type::kInt32: load(4); return static_cast<int32_t>(static_cast<uint32_t>(v));
+    case Type::kUint32: load(4); return static_cast<uint32_t>(v);
+    case Type::kFloat32: {
+      load(4);
+      const uint32_t bits = static_cast<uint32_t>(v);
+      float f;
+      std::memcpy(&f, &bits, 4);
+      return f;
+    }
+    case Type::kFloat64: {
+      load(8);
+      double d;
+      std::memcpy(&d, &v, 8);
+      return d;
+    }
+  }
+  return 0;
+}
+
+// A decoded value as an integer field: non-finite values (a corrupt file) become 0 instead of undefined
+// behaviour in the conversion.
+double Finite(double v, double lo, double hi) {
+  return std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0;
+}
+
+struct Property {
+  std::string name;
+  Type type = Type::kFloat32;
+  int bytes = 4;
+  bool is_list = false;
+};
+struct Element {
+  std::string name;
+  uint64_t count = 0;
+  std::vector<Property> properties;
+};
+
+}  // namespace
+
+std::string EncodePly(const PointCloud& cloud) {
+  std::string out;
+  out.reserve(400 + cloud.size() * 36);
+  out +=
+      "ply\nformat binary_little_endian 1.0\ncomment rotoscan cloud: x y z in mm, table frame\n"
+      "element vertex " +
+      std::to_string(cloud.size()) +
+      "\nproperty float x\nproperty float y\nproperty float z\n"
+      "property float nx\nproperty float ny\nproperty float nz\n"
+      "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+      "property uchar laser\nproperty int step\nproperty float quality\nend_header\n";
+  for (const CloudPoint& p : cloud.points) {
+    for (int i = 0; i < 3; ++i) PutFloat(&out, p.position_in_table[i]);
+    for (int i = 0; i < 3; ++i) PutFloat(&out, p.normal[i]);
+    for (int i = 0; i < 3; ++i) out.push_back(static_cast<char>(p.color[static_cast<size_t>(i)]));
+    out.push_back(static_cast<char>(p.laser));
+    PutU32(&out, static_cast<uint32_t>(p.step));
+    PutFloat(&out, p.quality);
+  }
+  return out;
+}
+
+Status WritePly(const std::filesystem::path& path, const PointCloud& cloud) {
+  return WriteFileAtomically(path, EncodePly(cloud)).WithContext("writing " + path.string());
+}
+
+Result<PointCloud> ReadPly(const std::filesystem::path& path, const PlyReadOptions& options) {
+  auto bytes = ReadFile(path, options.max_file_bytes);
+  if (!bytes.ok()) return bytes.status().WithContext("reading " + path.string());
+  return DecodePly(*bytes, path.string(), options);
+}
+
+Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
+                             const PlyReadOptions& options) {
+  auto corrupt = [&](const std::string& why) { return CorruptDataError(name + ": " + why); };
+  // Header: text lines up to "end_header\n", bounded.
+  const size_t header_end = bytes.find("end_header");
+  if (bytes.compare(0, 4, "ply\n") != 0 && bytes.compare(0, 5, "ply\r\n") != 0) {
+    return corrupt("not a PLY file (no 'ply' magic)");
+  }
+  if (header_end == std::string::npos || header_end > (1 << 20)) return corrupt("no end_header");
+  size_t data_start = bytes.find('\n', header_end);
+  if (data_start == std::string::npos) return corrupt("header not terminated");
+  ++data_start;
+  std::istringstream header(bytes.substr(0, header_end));
+  std::string line;
+  bool binary = false, have_format = false;
+  std::vector<Element> elements;
+  while (std::getline(header, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream words(line);
+    std::string keyword;
+    words >> keyword;
+    if (keyword == "format") {
+      std::string format, version;
+      words >> format >> version;
+      if (format == "binary_little_endian") {
+        binary = true;
+      } else if (format != "ascii") {
+        return corrupt("unsupported format '" + format + "' (binary_little_endian and ascii are read)");
+      }
+      have_format = true;
+    } else if (keyword == "element") {
+      Element e;
+      std::string count;
+      words >> e.name >> count;
+      if (count.empty() || count.find_first_not_of("0123456789") != std::string::npos || count.size() > 19) {
+        return corrupt("bad count in '" + line + "'");
+      }
+      e.count = std::stoull(count);
+      elements.push_back(e);
+    } else if (keyword == "property") {
+      if (elements.empty()) return corrupt("property before any element");
+      Property p;
+      std::string type;
+      words >> type;
+      if (type == "list") {
+        std::string count_type, item_type;
+        words >> count_type >> item_type >> p.name;
+        p.is_list = true;
+      } else {
+        if (!ParseType(type, &p.type, &p.bytes)) return corrupt("unknown property type '" + type + "'");
+        words >> p.name;
+      }
+      elements.back().properties.push_back(p);
+    }
+  }
+  if (!have_format) return corrupt("no format line");
+  // Find the vertex element; everything before it must be skippable.
+  size_t offset = data_start;
+  const Element* vertex = nullptr;
+  std::istringstream ascii(binary ? std::string() : bytes.substr(data_start));
+  for (const Element& e : elements) {
+    if (e.name == "vertex") {
+      vertex = &e;
+      break;
+    }
+    for (const Property& p : e.properties) {
+      if (p.is_list) return corrupt("list property in element '" + e.name + "' before the vertices");
+    }
+    if (binary) {
+      uint64_t stride = 0;
+      for (const Property& p : e.properties) stride += static_cast<uint64_t>(p.bytes);
+      if (stride != 0 && e.count > (bytes.size() - offset) / stride)
+        return corrupt("truncated element " + e.name);
+      offset += static_cast<size_t>(e.count * stride);
+    } else {
+      for (uint64_t i = 0; i < e.count; ++i) {
+        if (!std::getline(ascii, line)) return corrupt("truncated element " + e.name);
+      }
+    }
+  }
+  if (vertex == nullptr) return corrupt("no vertex element");
+  int index[12];
+  const char* names[12] = {"x",   "y",     "z",    "nx",    "ny",   "nz",
+                           "red", "green", "blue", "laser", "step", "quality"};
+  for (int k = 0; k < 12; ++k) index[k] = -1;
+  uint64_t stride = 0;
+  for (size_t i = 0; i < vertex->properties.size(); ++i) {
+    const Property& p = vertex->properties[i];
+    if (p.is_list) return corrupt("list property '" + p.name + "' in the vertex element is not supported");
+    stride += static_cast<uint64_t>(p.bytes);
+    for (int k = 0; k < 12; ++k) {
+      if (p.name == names[k]) index[k] = static_cast<int>(i);
+    }
+  }
+  if (index[0] < 0 || index[1] < 0 || index[2] < 0) return corrupt("vertex element lacks x, y or z");
+  if (vertex->count > options.max_points) {
+    return corrupt("claims " + std::to_string(vertex->count) + " vertices, more than the limit " +
+                   std::to_string(options.max_points));
+  }
+  if (binary && vertex->count > (bytes.size() - offset) / stride) {
+    return corrupt("truncated: " + std::to_string(vertex->count) + " vertices of " + std::to_string(stride) +
+                   " bytes announced, " + std::to_string(bytes.size() - offset) + " bytes present");
+  }
+  if (!binary && vertex->count > bytes.size() - data_start) return corrupt("truncated vertex data");
+  PointCloud cloud;
+  cloud.points.resize(static_cast<size_t>(vertex->count));
+  std::vector<double> values(vertex->properties.size());
+  const auto* data = reinterpret_cast<const unsigned char*>(bytes.data());
+  for (uint64_t v = 0; v < vertex->count; ++v) {
+    if (binary) {
+      size_t at = offset + static_cast<size_t>(v * stride);
+      for (size_t i = 0; i < values.size(); ++i) {
+        values[i] = DecodeBinary(data + at, vertex->properties[i].type);
+        at += static_cast<size_t>(vertex->properties[i].bytes);
+      }
+    } else {
+      if (!std::getline(ascii, line)) return corrupt("truncated at vertex " + std::to_string(v));
+      std::istringstream words(line);
+      for (double& value : values) {
+        if (!(words >> value)) return corrupt("bad vertex line " + std::to_string(v));
+      }
+    }
+    CloudPoint& p = cloud.points[static_cast<size_t>(v)];
+    auto get = [&](int k, double fallback) {
+      return index[k] >= 0 ? values[static_cast<size_t>(index[k])] : fallback;
+    };
+    for (int k = 0; k < 3; ++k) {
+      const double x = get(k, 0);
+      if (!std::isfinite(x) || std::abs(x) > 1e30)
+        return corrupt("non-finite coordinate at vertex " + std::to_string(v));
+      p.position_in_table[k] = static_cast<float>(x);
+      p.normal[k] = static_cast<float>(Finite(get(3 + k, 0), -1e30, 1e30));
+      p.color[static_cast<size_t>(k)] = static_cast<uint8_t>(Finite(get(6 + k, 0), 0.0, 255.0));
+    }
+    p.laser = static_cast<uint8_t>(Finite(get(9, 0), 0.0, 255.0));
+    p.step = static_cast<int32_t>(Finite(get(10, 0), -2147483648.0, 2147483647.0));
+    p.quality = static_cast<float>(Finite(get(11, 0), -1e30, 1e30));
+  }
+  return cloud;
+}
+
+}  // namespace rotoscan::cloud

@@ -1,0 +1,154 @@
+#include "rotoscan/pipeline/accuracy.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include <Eigen/SVD>
+
+#include "rotoscan/sim/scene.h"
+#include "rotoscan/sim/simulate.h"
+
+namespace rotoscan::pipeline {
+
+void LineAccuracy::Add(const LineAccuracy& o) {
+  frames += o.frames;
+  truth_rows += o.truth_rows;
+  extracted += o.extracted;
+  matched += o.matched;
+  outliers += o.outliers;
+  spurious += o.spurious;
+  missed += o.missed;
+  sum_error += o.sum_error;
+  sum_squared += o.sum_squared;
+  max_abs = std::max(max_abs, o.max_abs);
+}
+
+LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
+                              double outlier_px) {
+  LineAccuracy a;
+  a.frames = 1;
+  std::map<int, std::vector<double>> by_row;
+  for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(t.column);
+  a.truth_rows = by_row.size();
+  a.extracted = line.points.size();
+  size_t found_rows = 0;
+  for (const laser::LinePoint& p : line.points) {
+    auto it = by_row.find(p.row);
+    if (it == by_row.end()) {
+      ++a.spurious;
+      continue;
+    }
+    ++found_rows;
+    double best = 1e300;
+    for (double c : it->second) {
+      if (std::abs(p.column - c) < std::abs(best)) best = p.column - c;
+    }
+    if (std::abs(best) > outlier_px) {
+      ++a.outliers;
+      continue;
+    }
+    ++a.matched;
+    a.sum_error += best;
+    a.sum_squared += best * best;
+    a.max_abs = std::max(a.max_abs, std::abs(best));
+  }
+  a.missed = a.truth_rows - found_rows;
+  return a;
+}
+
+Result<LineAccuracy> MeasureLineAccuracy(const std::filesystem::path& bundle_dir,
+                                         const laser::ExtractOptions& options, size_t max_frames,
+                                         double outlier_px, Progress* progress) {
+  ROTOSCAN_ASSIGN_OR_RETURN(const bundle::Bundle b, bundle::ReadBundle(bundle_dir));
+  if (!b.has_truth)
+    return NotFoundError(bundle_dir.string() + " has no truth/ (only virtual scanner bundles do)");
+  laser::ExtractOptions o = options;
+  if (o.layout == laser::PixelLayout::kAuto && b.header.camera.bayer)
+    o.layout = laser::PixelLayout::kBayerRggb;
+  laser::LineExtractor extractor(o);
+  std::vector<size_t> laser_frames;
+  for (size_t i = 0; i < b.frames.size(); ++i) {
+    const bundle::LaserState s = b.frames[i].laser;
+    if (s == bundle::LaserState::kLeft || s == bundle::LaserState::kRight) laser_frames.push_back(i);
+  }
+  if (max_frames > 0 && laser_frames.size() > max_frames) laser_frames.resize(max_frames);
+  ProgressScope scope(progress, "line accuracy", laser_frames.size());
+  LineAccuracy total;
+  laser::Line line;
+  for (size_t index : laser_frames) {
+    const bundle::FrameRecord& record = b.frames[index];
+    const int off_index = b.FindFrame(record.step, bundle::LaserState::kOff, record.pose);
+    if (off_index < 0)
+      return NotFoundError(record.file + ": no laser-off frame for step " + std::to_string(record.step));
+    ROTOSCAN_ASSIGN_OR_RETURN(const cv::Mat on, bundle::ReadFrame(b, record));
+    ROTOSCAN_ASSIGN_OR_RETURN(const cv::Mat off, bundle::ReadFrame(b, static_cast<size_t>(off_index)));
+    ROTOSCAN_RETURN_IF_ERROR(
+        extractor
+            .Extract(To8Bit(on, b.header.camera.bit_depth), To8Bit(off, b.header.camera.bit_depth), &line)
+            .WithContext(record.file));
+    ROTOSCAN_ASSIGN_OR_RETURN(const std::vector<bundle::LinePoint> truth, bundle::ReadLineTruth(b, record));
+    total.Add(CompareWithTruth(line, truth, outlier_px));
+    scope.Advance();
+  }
+  return total;
+}
+
+Result<PlaneAccuracy> MeasurePlaneAccuracy(const std::filesystem::path& bundle_dir, const geometry::Rig& rig,
+                                           const ProcessOptions& options, double max_distance_mm) {
+  ROTOSCAN_ASSIGN_OR_RETURN(const bundle::Bundle b, bundle::ReadBundle(bundle_dir));
+  if (!b.has_truth) return NotFoundError(bundle_dir.string() + " has no truth/");
+  // The true plane from the exact truth points of object 1.
+  std::vector<Eigen::Vector3d> truth_points;
+  for (const bundle::FrameRecord& f : b.frames) {
+    if (f.laser != bundle::LaserState::kLeft && f.laser != bundle::LaserState::kRight) continue;
+    ROTOSCAN_ASSIGN_OR_RETURN(const std::vector<bundle::LinePoint> truth, bundle::ReadLineTruth(b, f));
+    for (const bundle::LinePoint& t : truth) {
+      if (t.object == 1) truth_points.push_back(t.point_in_world);
+    }
+  }
+  if (truth_points.size() < 3)
+    return InvalidArgumentError(bundle_dir.string() + ": no truth points on object 1");
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& p : truth_points) centroid += p;
+  centroid /= static_cast<double>(truth_points.size());
+  Eigen::MatrixXd centered(truth_points.size(), 3);
+  for (size_t i = 0; i < truth_points.size(); ++i)
+    centered.row(static_cast<Eigen::Index>(i)) = (truth_points[i] - centroid).transpose();
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(centered, Eigen::ComputeThinV);
+  PlaneAccuracy a;
+  a.true_plane = geometry::Plane::FromPointNormal(centroid, svd.matrixV().col(2));
+  ROTOSCAN_ASSIGN_OR_RETURN(const ProcessResult result, ProcessBundle(bundle_dir, rig, options));
+  double sum = 0, sum2 = 0;
+  for (const cloud::CloudPoint& p : result.cloud.points) {
+    const double d = a.true_plane.SignedDistance(p.position_in_table.cast<double>());
+    if (std::abs(d) > max_distance_mm) continue;
+    ++a.points;
+    sum += d;
+    sum2 += d * d;
+  }
+  if (a.points == 0)
+    return InvalidArgumentError(bundle_dir.string() + ": no cloud point near the true plane");
+  a.mean_mm = sum / a.points;
+  a.rms_mm = std::sqrt(sum2 / a.points);
+  return a;
+}
+
+Result<PlaneAccuracy> RunPlaneAccuracy(double distance_mm, const std::filesystem::path& work_dir, int steps,
+                                       const std::string& scene_overrides, Progress* progress) {
+  const std::string json =
+      "{" + (scene_overrides.empty() ? std::string() : scene_overrides + ", ") +
+      "\"objects\": [{\"type\": \"plane\", \"distance_mm\": " + std::to_string(distance_mm) +
+      ", \"angle_deg\": 20, \"size_mm\": [150, 120], \"color\": [0.9, 0.9, 0.9]}]}";
+  ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene, sim::ParseScene(json, work_dir, "plane scene"));
+  sim::SimulateOptions options;
+  options.out = work_dir / ("plane-" + std::to_string(static_cast<int>(std::lround(distance_mm))));
+  options.steps = steps;
+  options.overwrite = true;
+  ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, options, progress));
+  ProcessOptions process;
+  process.merge = false;  // both lasers measure the same plane; keep every point
+  return MeasurePlaneAccuracy(options.out, scene.rig, process);
+}
+
+}  // namespace rotoscan::pipeline

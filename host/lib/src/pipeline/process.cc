@@ -1,0 +1,375 @@
+#include "rotoscan/pipeline/process.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rotoscan/core/check.h"
+#include "rotoscan/core/logging.h"
+#include "rotoscan/laser/triangulate.h"
+
+namespace rotoscan::pipeline {
+namespace {
+
+constexpr size_t kMaxWarnings = 20;
+
+// What one step produced, per laser, in row order.
+struct StepOutput {
+  bool done = false;
+  std::array<std::vector<cloud::CloudPoint>, 2> points;
+  std::array<std::vector<int>, 2> rows;
+  Eigen::Vector3f camera_in_table = Eigen::Vector3f::Zero();
+  std::array<laser::LineStats, 2> stats;
+};
+
+int FindRow(const std::vector<int>& rows, int row) {
+  auto it = std::lower_bound(rows.begin(), rows.end(), row);
+  return (it != rows.end() && *it == row) ? static_cast<int>(it - rows.begin()) : -1;
+}
+
+}  // namespace
+
+BundleStepSource::BundleStepSource(bundle::Bundle bundle) : bundle_(std::move(bundle)) {
+  for (const bundle::FrameRecord& f : bundle_.frames) {
+    if (f.pose < 0) steps_.push_back(f.step);
+  }
+  std::sort(steps_.begin(), steps_.end());
+  steps_.erase(std::unique(steps_.begin(), steps_.end()), steps_.end());
+}
+
+Result<StepFrames> BundleStepSource::Load(int index) const {
+  ROTOSCAN_CHECK(index >= 0 && index < StepCount());
+  StepFrames frames;
+  frames.step = steps_[static_cast<size_t>(index)];
+  frames.name = "step " + std::to_string(frames.step);
+  bool have_angle = false;
+  for (bundle::LaserState state : {bundle::LaserState::kLeft, bundle::LaserState::kRight,
+                                   bundle::LaserState::kOff, bundle::LaserState::kNatural}) {
+    const int i = bundle_.FindFrame(frames.step, state);
+    if (i < 0) continue;
+    const bundle::FrameRecord& record = bundle_.frames[static_cast<size_t>(i)];
+    if (!have_angle || state != bundle::LaserState::kNatural) {
+      frames.table_angle_rad = record.table_angle_rad;
+      have_angle = true;
+    }
+    auto image = bundle::ReadFrame(bundle_, record);
+    if (!image.ok()) return image.status().WithContext(record.file);
+    switch (state) {
+      case bundle::LaserState::kLeft: frames.laser[0] = std::move(*image); break;
+      case bundle::LaserState::kRight: frames.laser[1] = std::move(*image); break;
+      case bundle::LaserState::kOff: frames.off = std::move(*image); break;
+      case bundle::LaserState::kNatural: frames.natural = std::move(*image); break;
+    }
+  }
+  return frames;
+}
+
+Status ProcessOptions::Check() const {
+  ROTOSCAN_RETURN_IF_ERROR(extract.Check());
+  ROTOSCAN_RETURN_IF_ERROR(merge_options.Check());
+  if (threads < 0 || threads > 256) return InvalidArgumentError("process: threads must be in [0, 256]");
+  if (!use_laser[0] && !use_laser[1]) return InvalidArgumentError("process: no laser selected");
+  if (!(max_neighbor_mm > 0)) return InvalidArgumentError("process: max_neighbor_mm must be > 0");
+  return Status::Ok();
+}
+
+cv::Mat To8Bit(const cv::Mat& frame, int bit_depth) {
+  if (frame.depth() == CV_8U) return frame;
+  cv::Mat out;
+  const int bits = frame.depth() == CV_16U ? std::clamp(bit_depth, 9, 16) : 16;
+  frame.convertTo(out, CV_8U, 255.0 / ((1 << bits) - 1));
+  return out;
+}
+
+std::array<uint8_t, 3> SampleRgb(const cv::Mat& image, double column, double row) {
+  ROTOSCAN_CHECK(!image.empty() && image.depth() == CV_8U);
+  const int channels = image.channels();
+  const double x = std::clamp(column, 0.0, image.cols - 1.0);
+  const double y = std::clamp(row, 0.0, image.rows - 1.0);
+  const int x0 = std::min(static_cast<int>(x), image.cols - 1),
+            y0 = std::min(static_cast<int>(y), image.rows - 1);
+  const int x1 = std::min(x0 + 1, image.cols - 1), y1 = std::min(y0 + 1, image.rows - 1);
+  const double fx = x - x0, fy = y - y0;
+  std::array<uint8_t, 3> rgb{};
+  for (int c = 0; c < 3; ++c) {
+    const int ch = channels >= 3 ? 2 - c : 0;  // BGR -> RGB; gray replicated
+    auto at = [&](int yy, int xx) { return static_cast<double>(image.ptr<uint8_t>(yy)[xx * channels + ch]); };
+    const double v =
+        (1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x1)) + fy * ((1 - fx) * at(y1, x0) + fx * at(y1, x1));
+    rgb[static_cast<size_t>(c)] = static_cast<uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+  }
+  return rgb;
+}
+
+Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& source,
+                                   const ProcessOptions& options, Progress* progress) {
+  const auto start = std::chrono::steady_clock::now();
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  ROTOSCAN_RETURN_IF_ERROR(rig.Validate().WithContext("rig"));
+  const int steps = source.StepCount();
+  if (steps <= 0) return InvalidArgumentError("the scan has no steps");
+  laser::ExtractOptions extract = options.extract;
+  if (extract.layout == laser::PixelLayout::kAuto && source.bayer())
+    extract.layout = laser::PixelLayout::kBayerRggb;
+  const laser::Triangulator triangulator(rig.camera);
+  const geometry::CameraModel& camera = rig.camera;
+
+  std::vector<StepOutput> outputs(static_cast<size_t>(steps));
+  std::mutex mutex;
+  Status first_error;
+  std::vector<std::string> warnings;
+  int skipped = 0;
+  std::atomic<int> next{0};
+  std::atomic<bool> stop{false};
+  ProgressScope scope(progress, "process", static_cast<uint64_t>(steps));
+
+  auto warn = [&](const std::string& message) {
+    std::lock_guard<std::mutex> lock(mutex);
+    ++skipped;
+    if (warnings.size() < kMaxWarnings) warnings.push_back(message);
+  };
+  auto worker = [&] {
+    laser::LineExtractor extractor(extract);
+    laser::Line line;
+    std::vector<Eigen::Vector3d> points_in_cam;
+    std::vector<int> kept;
+    while (!stop.load()) {
+      const int index = next.fetch_add(1);
+      if (index >= steps) break;
+      if (scope.Cancelled()) {
+        stop = true;
+        break;
+      }
+      auto loaded = source.Load(index);
+      scope.Advance();
+      if (!loaded.ok()) {
+        warn("step #" + std::to_string(index) + " skipped: " + loaded.status().ToString());
+        continue;
+      }
+      StepFrames& f = *loaded;
+      if (f.off.empty() || (f.laser[0].empty() && f.laser[1].empty())) {
+        warn(f.name + " skipped: " + (f.off.empty() ? "no laser-off frame" : "no laser frame"));
+        continue;
+      }
+      bool size_error = false;
+      for (const cv::Mat* m : {&f.laser[0], &f.laser[1], &f.off, &f.natural}) {
+        if (!m->empty() && (m->cols != camera.width || m->rows != camera.height)) {
+          std::lock_guard<std::mutex> lock(mutex);
+          if (first_error.ok()) {
+            first_error =
+                InvalidArgumentError(f.name + ": frame size " + std::to_string(m->cols) + "x" +
+                                     std::to_string(m->rows) + " differs from the calibration's " +
+                                     std::to_string(camera.width) + "x" + std::to_string(camera.height));
+          }
+          size_error = true;
+        }
+      }
+      if (size_error) {
+        stop = true;
+        break;
+      }
+      const cv::Mat off = To8Bit(f.off, source.bit_depth());
+      cv::Mat natural;
+      if (!f.natural.empty()) {
+        natural = To8Bit(f.natural, source.bit_depth());
+        if (source.bayer() && natural.channels() == 1) {
+          cv::Mat bgr;
+          cv::cvtColor(natural, bgr, cv::COLOR_BayerBG2BGR);
+          natural = bgr;
+        }
+      }
+      StepOutput& out = outputs[static_cast<size_t>(index)];
+      const Eigen::Isometry3d world_from_cam = rig.WorldFromCamAtAngle(f.table_angle_rad);
+      out.camera_in_table = (world_from_cam * Eigen::Vector3d::Zero()).cast<float>();
+      bool failed = false;
+      for (int l = 0; l < 2; ++l) {
+        if (!options.use_laser[l] || f.laser[static_cast<size_t>(l)].empty()) continue;
+        const Status status =
+            extractor.Extract(To8Bit(f.laser[static_cast<size_t>(l)], source.bit_depth()), off, &line);
+        if (!status.ok()) {
+          warn(f.name + " " + geometry::LaserName(static_cast<geometry::LaserId>(l)) +
+               " skipped: " + status.ToString());
+          failed = true;
+          break;
+        }
+        out.stats[static_cast<size_t>(l)] = line.stats;
+        triangulator.Triangulate(line, rig.laser_plane[l], &points_in_cam, &kept);
+        auto& cloud_points = out.points[static_cast<size_t>(l)];
+        auto& rows = out.rows[static_cast<size_t>(l)];
+        for (size_t k = 0; k < points_in_cam.size(); ++k) {
+          const laser::LinePoint& lp = line.points[static_cast<size_t>(kept[k])];
+          if (lp.quality < options.min_quality) continue;
+          cloud::CloudPoint p;
+          p.position_in_table = (world_from_cam * points_in_cam[k]).cast<float>();
+          p.color =
+              natural.empty() ? std::array<uint8_t, 3>{128, 128, 128} : SampleRgb(natural, lp.column, lp.row);
+          p.laser = static_cast<uint8_t>(l);
+          p.step = f.step;
+          p.quality = lp.quality;
+          cloud_points.push_back(p);
+          rows.push_back(lp.row);
+        }
+      }
+      if (failed) {
+        out = StepOutput{};
+        continue;
+      }
+      out.done = true;
+    }
+  };
+  const int threads =
+      options.threads > 0 ? options.threads : std::max(1u, std::thread::hardware_concurrency());
+  std::vector<std::thread> pool;
+  for (int t = 1; t < std::min(threads, steps); ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  if (!first_error.ok()) return first_error;
+  if (scope.Cancelled()) return CancelledError("processing cancelled");
+
+  ProcessResult result;
+  ProcessSummary& s = result.summary;
+  s.steps = steps;
+  s.skipped_steps = skipped;
+  s.warnings = warnings;
+  if (skipped > static_cast<int>(kMaxWarnings)) {
+    s.warnings.push_back("... and " + std::to_string(skipped - static_cast<int>(kMaxWarnings)) + " more");
+  }
+  for (const StepOutput& o : outputs) {
+    if (!o.done) continue;
+    ++s.processed_steps;
+    for (int l = 0; l < 2; ++l) {
+      const laser::LineStats& ls = o.stats[static_cast<size_t>(l)];
+      s.line_totals.rows += ls.rows;
+      s.line_totals.found += ls.found;
+      s.line_totals.low_contrast += ls.low_contrast;
+      s.line_totals.bad_width += ls.bad_width;
+      s.line_totals.off_saturated += ls.off_saturated;
+      s.line_totals.multiple_peaks += ls.multiple_peaks;
+      s.points_per_laser[static_cast<size_t>(l)] += o.points[static_cast<size_t>(l)].size();
+    }
+  }
+  if (s.processed_steps == 0) {
+    return InvalidArgumentError("no step could be processed (" + std::to_string(skipped) + " skipped" +
+                                (warnings.empty() ? std::string() : ", first: " + warnings.front()) + ")");
+  }
+
+  // Normals from the scan grid: the tangent along the line (rows r +- 1 of the same step) crossed with the
+  // tangent across steps (the same row at steps i +- 1), oriented toward the camera of the point's step.
+  if (options.estimate_normals) {
+    const float max_d = static_cast<float>(options.max_neighbor_mm);
+    for (int i = 0; i < steps; ++i) {
+      StepOutput& o = outputs[static_cast<size_t>(i)];
+      if (!o.done) continue;
+      for (int l = 0; l < 2; ++l) {
+        auto& pts = o.points[static_cast<size_t>(l)];
+        const auto& rows = o.rows[static_cast<size_t>(l)];
+        for (size_t k = 0; k < pts.size(); ++k) {
+          const Eigen::Vector3f& p = pts[k].position_in_table;
+          auto neighbor = [&](int step_index, int row, Eigen::Vector3f* q) {
+            if (step_index < 0 || step_index >= steps) return false;
+            const StepOutput& n = outputs[static_cast<size_t>(step_index)];
+            if (!n.done) return false;
+            const int j = FindRow(n.rows[static_cast<size_t>(l)], row);
+            if (j < 0) return false;
+            *q = n.points[static_cast<size_t>(l)][static_cast<size_t>(j)].position_in_table;
+            return (*q - p).norm() <= max_d;
+          };
+          auto tangent = [&](int s0, int r0, int s1, int r1, Eigen::Vector3f* t) {
+            Eigen::Vector3f a = Eigen::Vector3f::Zero(), b = Eigen::Vector3f::Zero();
+            const bool has_a = neighbor(s0, r0, &a), has_b = neighbor(s1, r1, &b);
+            if (has_a && has_b) {
+              *t = b - a;
+            } else if (has_b) {
+              *t = b - p;
+            } else if (has_a) {
+              *t = p - a;
+            } else {
+              return false;
+            }
+            return t->squaredNorm() > 1e-12f;
+          };
+          const int row = rows[k];
+          Eigen::Vector3f along, across;
+          if (!tangent(i, row - 1, i, row + 1, &along) || !tangent(i - 1, row, i + 1, row, &across)) continue;
+          Eigen::Vector3f normal = along.cross(across);
+          if (normal.squaredNorm() < 1e-20f) continue;
+          normal.normalize();
+          if (normal.dot(o.camera_in_table - p) < 0) normal = -normal;
+          pts[k].normal = normal;
+          ++s.points_with_normal;
+        }
+      }
+    }
+  }
+
+  cloud::PointCloud all;
+  all.points.reserve(s.points_per_laser[0] + s.points_per_laser[1]);
+  for (const StepOutput& o : outputs) {
+    for (int l = 0; l < 2; ++l) {
+      all.points.insert(all.points.end(), o.points[static_cast<size_t>(l)].begin(),
+                        o.points[static_cast<size_t>(l)].end());
+    }
+  }
+  outputs.clear();
+  if (options.merge && options.use_laser[0] && options.use_laser[1]) {
+    result.cloud = cloud::MergeLasers(all, options.merge_options, &s.merge);
+  } else {
+    s.merge.left_in = s.merge.left_out = s.points_per_laser[0];
+    s.merge.right_in = s.merge.right_out = s.points_per_laser[1];
+    s.merge.disagreement = cloud::MeasureLaserDisagreement(all, options.merge_options.overlap_radius_mm);
+    result.cloud = std::move(all);
+  }
+  s.points_out = result.cloud.size();
+  s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+Result<ProcessResult> ProcessBundle(const std::filesystem::path& bundle_dir, const geometry::Rig& rig,
+                                    const ProcessOptions& options, Progress* progress) {
+  auto bundle = bundle::ReadBundle(bundle_dir);
+  if (!bundle.ok()) return bundle.status();
+  if (bundle->header.kind != bundle::BundleKind::kScan) {
+    return InvalidArgumentError(bundle_dir.string() + " is a calibration bundle, not a scan");
+  }
+  const geometry::CameraModel& nominal = bundle->header.camera.model;
+  if (nominal.width != rig.camera.width || nominal.height != rig.camera.height) {
+    return InvalidArgumentError(bundle_dir.string() + ": image size " + std::to_string(nominal.width) + "x" +
+                                std::to_string(nominal.height) + " differs from the calibration's " +
+                                std::to_string(rig.camera.width) + "x" + std::to_string(rig.camera.height));
+  }
+  BundleStepSource source(std::move(*bundle));
+  return ProcessSteps(rig, source, options, progress);
+}
+
+std::string FormatSummary(const ProcessSummary& s) {
+  std::ostringstream out;
+  out.setf(std::ios::fixed);
+  out.precision(4);
+  out << "steps " << s.processed_steps << " of " << s.steps << " processed, " << s.skipped_steps
+      << " skipped\n";
+  out << "laser rows: " << s.line_totals.found << " found of " << s.line_totals.rows << " (no contrast "
+      << s.line_totals.low_contrast << ", bad width " << s.line_totals.bad_width << ", off saturated "
+      << s.line_totals.off_saturated << ", multiple peaks " << s.line_totals.multiple_peaks << ")\n";
+  out << "points: left " << s.points_per_laser[0] << ", right " << s.points_per_laser[1] << ", with normal "
+      << s.points_with_normal << "\n";
+  const cloud::LaserDisagreement& d = s.merge.disagreement;
+  out << "laser disagreement: " << d.pairs << " pairs, mean offset " << d.mean_signed_mm << " mm, rms "
+      << d.rms_mm << " mm, median |d| " << d.median_abs_mm << " mm\n";
+  out << "merge: kept left " << s.merge.left_out << " of " << s.merge.left_in << ", right "
+      << s.merge.right_out << " of " << s.merge.right_in << " (" << s.merge.shared_voxels
+      << " shared voxels) -> " << s.points_out << " points\n";
+  out.precision(2);
+  out << "time " << s.seconds << " s\n";
+  for (const std::string& w : s.warnings) out << "warning: " << w << "\n";
+  return out.str();
+}
+
+}  // namespace rotoscan::pipeline

@@ -1,0 +1,484 @@
+#include "rotoscan/sim/renderer.h"
+
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "mesh.h"
+#include "rotoscan/core/check.h"
+
+namespace rotoscan::sim {
+
+using internal::Mesh;
+
+uint64_t FrameSeed(uint64_t scene_seed, int pose, int step, int frame) {
+  auto mix = [](uint64_t z) {
+    z += 0x9e3779b97f4a7c15ULL;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    return z ^ (z >> 31);
+  };
+  uint64_t h = mix(scene_seed);
+  h = mix(h ^ static_cast<uint64_t>(static_cast<uint32_t>(pose)));
+  h = mix(h ^ static_cast<uint64_t>(static_cast<uint32_t>(step)));
+  return mix(h ^ static_cast<uint64_t>(frame));
+}
+
+struct Renderer::Impl {
+  RTCDevice device = nullptr;
+  RTCScene rtc_scene = nullptr;
+  std::vector<Mesh> meshes;  // 0: table top
+  // Camera ray (z = 1) through pixel centres on a grid with a one-pixel border: (width + 2) x (height + 2).
+  std::vector<Eigen::Vector3f> rays;
+  int grid_width = 0;
+
+  ~Impl() {
+    if (rtc_scene != nullptr) rtcReleaseScene(rtc_scene);
+    if (device != nullptr) rtcReleaseDevice(device);
+  }
+
+  // Ray direction (camera frame, z = 1) at continuous pixel position (x, y), bilinear between centres.
+  Eigen::Vector3f RayAt(float x, float y) const {
+    const float gx = x + 1, gy = y + 1;
+    const int grid_height = static_cast<int>(rays.size()) / grid_width;
+    const int x0 = std::clamp(static_cast<int>(std::floor(gx)), 0, grid_width - 2);
+    const int y0 = std::clamp(static_cast<int>(std::floor(gy)), 0, grid_height - 2);
+    const float fx = gx - x0, fy = gy - y0;
+    auto at = [&](int yy, int xx) -> const Eigen::Vector3f& { return rays[yy * grid_width + xx]; };
+    if (fx == 0.0f && fy == 0.0f) return at(y0, x0);
+    return (1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1)) +
+           fy * ((1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1));
+  }
+
+  // True when something lies on the segment from `from` towards `to` (table frame), excluding `gap` mm
+  // at each end.
+  bool Occluded(const Eigen::Vector3d& from, const Eigen::Vector3d& to, double gap) const {
+    const Eigen::Vector3d d = to - from;
+    const double length = d.norm();
+    if (length <= 2 * gap) return false;
+    RTCRay ray;
+    ray.org_x = static_cast<float>(from.x());
+    ray.org_y = static_cast<float>(from.y());
+    ray.org_z = static_cast<float>(from.z());
+    ray.dir_x = static_cast<float>(d.x() / length);
+    ray.dir_y = static_cast<float>(d.y() / length);
+    ray.dir_z = static_cast<float>(d.z() / length);
+    ray.tnear = static_cast<float>(gap);
+    ray.tfar = static_cast<float>(length - gap);
+    ray.mask = 0xFFFFFFFF;
+    ray.time = 0.0f;
+    ray.flags = 0;
+    ray.id = 0;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    rtcOccluded1(rtc_scene, &context, &ray);
+    return ray.tfar < 0.0f;
+  }
+};
+
+Renderer::Renderer(const Scene& scene, std::unique_ptr<Impl> impl) : scene_(scene), impl_(std::move(impl)) {}
+Renderer::~Renderer() = default;
+
+Result<std::unique_ptr<Renderer>> Renderer::Create(const Scene& scene) {
+  ROTOSCAN_RETURN_IF_ERROR(scene.rig.Validate().WithContext("scene rig"));
+  auto impl = std::make_unique<Impl>();
+  impl->meshes.push_back(internal::MakeTableTop(scene.table_radius_mm, scene.table_albedo));
+  for (std::size_t i = 0; i < scene.objects.size(); ++i) {
+    auto mesh = internal::MakeObject(scene.objects[i], scene);
+    if (!mesh.ok()) return mesh.status().WithContext("objects[" + std::to_string(i) + "]");
+    impl->meshes.push_back(std::move(mesh).value());
+  }
+  impl->device = rtcNewDevice("threads=1");
+  if (impl->device == nullptr) return InternalError("Embree device could not be created");
+  impl->rtc_scene = rtcNewScene(impl->device);
+  rtcSetSceneBuildQuality(impl->rtc_scene, RTC_BUILD_QUALITY_HIGH);
+  for (std::size_t i = 0; i < impl->meshes.size(); ++i) {
+    const Mesh& m = impl->meshes[i];
+    RTCGeometry geometry = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(
+        geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), m.vertices.size()));
+    auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
+        geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), m.faces.size()));
+    if (vertices == nullptr || indices == nullptr) {
+      rtcReleaseGeometry(geometry);
+      return InternalError("Embree buffers could not be allocated");
+    }
+    for (std::size_t v = 0; v < m.vertices.size(); ++v) {
+      for (int k = 0; k < 3; ++k) vertices[3 * v + k] = m.vertices[v][k];
+    }
+    for (std::size_t f = 0; f < m.faces.size(); ++f) {
+      for (int k = 0; k < 3; ++k) indices[3 * f + k] = static_cast<unsigned>(m.faces[f][k]);
+    }
+    rtcCommitGeometry(geometry);
+    rtcAttachGeometryByID(impl->rtc_scene, geometry, static_cast<unsigned>(i));
+    rtcReleaseGeometry(geometry);
+  }
+  rtcCommitScene(impl->rtc_scene);
+  if (rtcGetDeviceError(impl->device) != RTC_ERROR_NONE) return InternalError("Embree scene build failed");
+
+  const geometry::CameraModel& camera = scene.rig.camera;
+  impl->grid_width = camera.width + 2;
+  impl->rays.resize(static_cast<std::size_t>(camera.width + 2) * (camera.height + 2));
+  for (int y = -1; y <= camera.height; ++y) {
+    for (int x = -1; x <= camera.width; ++x) {
+      impl->rays[(y + 1) * impl->grid_width + (x + 1)] =
+          camera.PixelToRay(Eigen::Vector2d(x, y)).cast<float>();
+    }
+  }
+  return std::unique_ptr<Renderer>(new Renderer(scene, std::move(impl)));
+}
+
+std::size_t Renderer::TriangleCount() const {
+  std::size_t n = 0;
+  for (const Mesh& m : impl_->meshes) n += m.faces.size();
+  return n;
+}
+
+Eigen::Isometry3d Renderer::TableFromObject(std::size_t i) const {
+  ROTOSCAN_CHECK(i + 1 < impl_->meshes.size());
+  return impl_->meshes[i + 1].table_from_object;
+}
+
+bundle::TruthMesh Renderer::ObjectMesh() const {
+  bundle::TruthMesh out;
+  for (std::size_t i = 1; i < impl_->meshes.size(); ++i) {
+    const Mesh& m = impl_->meshes[i];
+    const int base = static_cast<int>(out.vertices.size());
+    out.vertices.insert(out.vertices.end(), m.vertices.begin(), m.vertices.end());
+    std::vector<Eigen::Vector3f> colors(m.vertices.size(), m.color);
+    if (!m.colors.empty()) colors = m.colors;
+    for (std::size_t f = 0; f < m.faces.size(); ++f) {
+      out.faces.push_back(m.faces[f] + Eigen::Vector3i::Constant(base));
+      if (!m.texture.empty() && !m.uv.empty()) {
+        for (int k = 0; k < 3; ++k) {
+          const float u = k == 1 ? 1.f : 0.f, v = k == 2 ? 1.f : 0.f;
+          colors[m.faces[f][k]] = m.Albedo(static_cast<unsigned>(f), u, v, Eigen::Vector3d::Zero());
+        }
+      }
+    }
+    for (const Eigen::Vector3f& c : colors) {
+      out.colors.push_back({static_cast<uint8_t>(std::clamp(c.x(), 0.f, 1.f) * 255.f + 0.5f),
+                            static_cast<uint8_t>(std::clamp(c.y(), 0.f, 1.f) * 255.f + 0.5f),
+                            static_cast<uint8_t>(std::clamp(c.z(), 0.f, 1.f) * 255.f + 0.5f)});
+    }
+  }
+  return out;
+}
+
+cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
+  ROTOSCAN_CHECK(electrons.type() == CV_32FC3);
+  const SensorModel& s = scene_.sensor;
+  cv::RNG rng(seed);
+  const int rows = electrons.rows, cols = electrons.cols;
+  cv::Mat raw;  // electrons, 1 or 3 channels
+  if (s.bayer) {
+    // RGGB: R at (even row, even col), B at (odd, odd); BGR memory order.
+    raw.create(rows, cols, CV_32FC1);
+    for (int y = 0; y < rows; ++y) {
+      const cv::Vec3f* in = electrons.ptr<cv::Vec3f>(y);
+      float* out = raw.ptr<float>(y);
+      for (int x = 0; x < cols; ++x) {
+        const int channel = (y % 2 == 0) ? (x % 2 == 0 ? 2 : 1) : (x % 2 == 0 ? 1 : 0);
+        out[x] = in[x][channel];
+      }
+    }
+  } else {
+    raw = electrons.clone();
+  }
+  cv::Mat flat = raw.reshape(1);
+  if (s.noise) {
+    cv::Mat normal(flat.size(), CV_32FC1);
+    rng.fill(normal, cv::RNG::NORMAL, 0.0, 1.0);
+    const float read2 = static_cast<float>(s.read_noise_e * s.read_noise_e);
+    for (int y = 0; y < flat.rows; ++y) {
+      float* e = flat.ptr<float>(y);
+      const float* n = normal.ptr<float>(y);
+      for (int x = 0; x < flat.cols; ++x) {
+        const float mean = std::max(0.0f, e[x]);
+        e[x] = mean + std::sqrt(mean + read2) * n[x];
+      }
+    }
+  }
+  const float k = static_cast<float>(s.DnPerElectron());
+  const float full = static_cast<float>(s.full_well_e), max_dn = static_cast<float>(s.MaxDn());
+  const bool identity_matrix = s.color_matrix == std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const int depth = s.bit_depth > 8 ? CV_16U : CV_8U;
+  cv::Mat dn(flat.size(), depth);
+  for (int y = 0; y < flat.rows; ++y) {
+    const float* e = flat.ptr<float>(y);
+    for (int x = 0; x < flat.cols; ++x) {
+      const float v = std::clamp(std::round(std::min(e[x], full) * k), 0.0f, max_dn);
+      if (depth == CV_8U) {
+        dn.ptr<uint8_t>(y)[x] = static_cast<uint8_t>(v);
+      } else {
+        dn.ptr<uint16_t>(y)[x] = static_cast<uint16_t>(v);
+      }
+    }
+  }
+  dn = dn.reshape(s.bayer ? 1 : 3);
+  cv::Mat color;
+  if (s.bayer) {
+    // OpenCV names Bayer patterns by the second row: an RGGB sensor is COLOR_BayerBG2BGR.
+    cv::cvtColor(dn, color, cv::COLOR_BayerBG2BGR);
+  } else {
+    color = dn;
+  }
+  if (identity_matrix) return color;
+  // The color matrix acts on RGB; in BGR order it is reversed in both indices.
+  cv::Matx33f m;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) m(2 - i, 2 - j) = static_cast<float>(s.color_matrix[3 * i + j]);
+  }
+  cv::Mat out;
+  cv::transform(color, out, m);  // saturating cast to the same depth
+  return out;
+}
+
+RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const FrameMask& mask) const {
+  const Scene& sc = scene_;
+  const geometry::CameraModel& camera = sc.rig.camera;
+  const int width = camera.width, height = camera.height;
+  const int ss = sc.sensor.supersampling;
+  const Eigen::Isometry3d table_from_cam = sc.rig.WorldFromCamAtAngle(table_angle);
+  const Eigen::Matrix3f rotation = table_from_cam.linear().cast<float>();
+  const Eigen::Vector3d cam_centre = table_from_cam.translation();
+  const Eigen::Vector3d light = (table_from_cam.linear() * sc.light_direction_in_cam).normalized();
+  const bool want_laser[2] = {mask[0], mask[1]};
+  Eigen::Vector3d laser_origin[2], laser_normal[2];
+  double laser_offset[2];
+  for (int k = 0; k < 2; ++k) {
+    laser_origin[k] = table_from_cam * sc.laser[k].origin_in_cam;
+    laser_normal[k] = table_from_cam.linear() * sc.rig.laser_plane[k].normal;
+    laser_offset[k] =
+        -laser_normal[k].dot(table_from_cam * (-sc.rig.laser_plane[k].offset * sc.rig.laser_plane[k].normal));
+  }
+
+  cv::Mat ambient(height, width, CV_32FC3, cv::Scalar::all(0));  // albedo * ambient, BGR
+  cv::Mat lamp(height, width, CV_32FC3, cv::Scalar::all(0));     // albedo * (ambient + lamp), BGR
+  cv::Mat laser_img[2] = {cv::Mat(height, width, CV_32FC1, cv::Scalar(0)),
+                          cv::Mat(height, width, CV_32FC1, cv::Scalar(0))};
+  const float weight = 1.0f / static_cast<float>(ss * ss);
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+  const Eigen::Vector3f origin = cam_centre.cast<float>();
+  // Camera rays go to Embree in packets of 8 along a row of sub-samples (coherent, much faster than
+  // single rays); each hit is then shaded on its own.
+  constexpr int kPacket = 8;
+  for (int y = 0; y < height; ++y) {
+    cv::Vec3f* amb_row = ambient.ptr<cv::Vec3f>(y);
+    cv::Vec3f* lamp_row = lamp.ptr<cv::Vec3f>(y);
+    float* laser_row[2] = {laser_img[0].ptr<float>(y), laser_img[1].ptr<float>(y)};
+    auto shade = [&](int x, float px, float py, const Eigen::Vector3f& dir, float t,
+                     const Eigen::Vector3d& ng, unsigned geom_id, unsigned prim_id, float hit_u,
+                     float hit_v) {
+      const Mesh& mesh = impl_->meshes[geom_id];
+      const Eigen::Vector3d p = cam_centre + static_cast<double>(t) * dir.cast<double>();
+      Eigen::Vector3d n = ng.normalized();
+      if (n.dot(dir.cast<double>()) > 0) n = -n;  // towards the camera
+      Eigen::Vector3d footprint_x = Eigen::Vector3d::Zero(), footprint_y = Eigen::Vector3d::Zero();
+      if (mesh.pattern != internal::Pattern::kNone) {
+        // Ray differentials: where the rays one sub-sample right and down meet the hit's plane.
+        const float step = 1.0f / static_cast<float>(ss);
+        const Eigen::Vector3d dir_x = (rotation * impl_->RayAt(px + step, py)).cast<double>();
+        const Eigen::Vector3d dir_y = (rotation * impl_->RayAt(px, py + step)).cast<double>();
+        const double along = n.dot(p - cam_centre);
+        footprint_x = cam_centre + along / n.dot(dir_x) * dir_x - p;
+        footprint_y = cam_centre + along / n.dot(dir_y) * dir_y - p;
+      }
+      const Eigen::Vector3f albedo = mesh.Albedo(prim_id, hit_u, hit_v, p, footprint_x, footprint_y);
+      const float lit = static_cast<float>(sc.ambient + sc.diffuse * std::max(0.0, n.dot(light)));
+      for (int c = 0; c < 3; ++c) {
+        amb_row[x][2 - c] += weight * albedo[c] * static_cast<float>(sc.ambient);
+        lamp_row[x][2 - c] += weight * albedo[c] * lit;
+      }
+      for (int k = 0; k < 2; ++k) {
+        if (!want_laser[k]) continue;
+        const LaserModel& laser = sc.laser[k];
+        const double s = laser_normal[k].dot(p) + laser_offset[k];
+        if (std::abs(s) > 6.0 * laser.sigma_mm) continue;
+        const Eigen::Vector3d to_laser = laser_origin[k] - p;
+        const double range = to_laser.norm();
+        const double cos_incidence = n.dot(to_laser) / range;
+        if (cos_incidence <= 0.0) continue;
+        if (impl_->Occluded(p, laser_origin[k], 1e-2)) continue;  // shadowed from this laser
+        const double irradiance = laser.power * std::exp(-0.5 * s * s / (laser.sigma_mm * laser.sigma_mm)) *
+                                  cos_incidence * 300.0 / range;
+        laser_row[k][x] += weight * static_cast<float>(irradiance) * albedo[0];  // red reflectance
+      }
+    };
+    for (int sy = 0; sy < ss; ++sy) {
+      const int samples = width * ss;
+      for (int first = 0; first < samples; first += kPacket) {
+        alignas(32) int valid[kPacket];
+        alignas(32) RTCRayHit8 packet;
+        Eigen::Vector3f dirs[kPacket];
+        float pxs[kPacket], pys[kPacket];
+        for (int l = 0; l < kPacket; ++l) {
+          const int i = first + l;
+          valid[l] = i < samples ? -1 : 0;
+          const int x = std::min(i, samples - 1) / ss, sx = std::min(i, samples - 1) % ss;
+          // A regular grid of sub-samples: with the box-filtered patterns their footprints tile the pixel.
+          pxs[l] = x + (sx + 0.5f) / ss - 0.5f;
+          pys[l] = y + (sy + 0.5f) / ss - 0.5f;
+          dirs[l] = rotation * impl_->RayAt(pxs[l], pys[l]);
+          packet.ray.org_x[l] = origin.x();
+          packet.ray.org_y[l] = origin.y();
+          packet.ray.org_z[l] = origin.z();
+          packet.ray.dir_x[l] = dirs[l].x();
+          packet.ray.dir_y[l] = dirs[l].y();
+          packet.ray.dir_z[l] = dirs[l].z();
+          packet.ray.tnear[l] = 1.0f;
+          packet.ray.tfar[l] = std::numeric_limits<float>::infinity();
+          packet.ray.mask[l] = 0xFFFFFFFF;
+          packet.ray.time[l] = 0.0f;
+          packet.ray.flags[l] = 0;
+          packet.ray.id[l] = 0;
+          packet.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;
+          packet.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
+        }
+        rtcIntersect8(valid, impl_->rtc_scene, &context, &packet);
+        for (int l = 0; l < kPacket; ++l) {
+          if (valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;  // black background
+          shade((first + l) / ss, pxs[l], pys[l], dirs[l], packet.ray.tfar[l],
+                Eigen::Vector3d(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]),
+                packet.hit.geomID[l], packet.hit.primID[l], packet.hit.u[l], packet.hit.v[l]);
+        }
+      }
+    }
+  }
+
+  RenderedStep out;
+  const SensorModel& sensor = sc.sensor;
+  const double laser_scale = sensor.laser_exposure_us * sensor.sensitivity_e_per_us;
+  const double natural_scale = sensor.natural_exposure_us * sensor.sensitivity_e_per_us;
+  auto finish = [&](cv::Mat electrons, int frame) {
+    if (sensor.blur_sigma_px > 0) {
+      cv::GaussianBlur(electrons, electrons, cv::Size(0, 0), sensor.blur_sigma_px, sensor.blur_sigma_px,
+                       cv::BORDER_REPLICATE);
+    }
+    out.frames[frame] = ApplySensor(electrons, seed ^ (0x51ed2701ULL * (frame + 1)));
+  };
+  for (int k = 0; k < 2; ++k) {
+    if (!mask[k]) continue;
+    const LaserModel& laser = sc.laser[k];
+    cv::Mat line = laser_img[k];
+    if (laser.speckle_contrast > 0) {
+      cv::Mat speckle(height, width, CV_32FC1);
+      cv::RNG rng(seed ^ (0xabcdef12345ULL * (k + 1)));
+      rng.fill(speckle, cv::RNG::NORMAL, 0.0, 1.0);
+      cv::GaussianBlur(speckle, speckle, cv::Size(0, 0), laser.speckle_size_px, laser.speckle_size_px,
+                       cv::BORDER_REFLECT);
+      cv::Scalar mean, stddev;
+      cv::meanStdDev(speckle, mean, stddev);
+      speckle = speckle * (laser.speckle_contrast / std::max(1e-12, stddev[0])) + 1.0;
+      speckle = cv::max(speckle, 0.0);
+      line = line.mul(speckle);
+    }
+    cv::Mat electrons(height, width, CV_32FC3);
+    const float r[3] = {static_cast<float>(laser.response[2]), static_cast<float>(laser.response[1]),
+                        static_cast<float>(laser.response[0])};  // BGR
+    for (int y = 0; y < height; ++y) {
+      const cv::Vec3f* a = ambient.ptr<cv::Vec3f>(y);
+      const float* l = line.ptr<float>(y);
+      cv::Vec3f* e = electrons.ptr<cv::Vec3f>(y);
+      for (int x = 0; x < width; ++x) {
+        for (int c = 0; c < 3; ++c) e[x][c] = static_cast<float>(laser_scale) * (a[x][c] + l[x] * r[c]);
+      }
+    }
+    finish(electrons, k);
+  }
+  if (mask[2]) finish(ambient * laser_scale, 2);
+  if (mask[3]) finish(lamp * natural_scale, 3);
+  return out;
+}
+
+std::vector<bundle::LinePoint> Renderer::LineTruth(geometry::LaserId id, double table_angle) const {
+  const Scene& sc = scene_;
+  const geometry::CameraModel& camera = sc.rig.camera;
+  const int k = static_cast<int>(id);
+  const geometry::Plane& plane = sc.rig.laser_plane[k];
+  const Eigen::Isometry3d table_from_cam = sc.rig.WorldFromCamAtAngle(table_angle);
+  const Eigen::Isometry3d cam_from_table = table_from_cam.inverse();
+  const Eigen::Vector3d cam_centre = table_from_cam.translation();
+  const Eigen::Vector3d laser_origin = table_from_cam * sc.laser[k].origin_in_cam;
+  std::vector<bundle::LinePoint> points;
+  for (std::size_t mi = 0; mi < impl_->meshes.size(); ++mi) {
+    const Mesh& mesh = impl_->meshes[mi];
+    std::vector<Eigen::Vector3d> in_cam(mesh.vertices.size());
+    std::vector<double> distance(mesh.vertices.size());
+    for (std::size_t v = 0; v < mesh.vertices.size(); ++v) {
+      in_cam[v] = cam_from_table * mesh.vertices[v].cast<double>();
+      distance[v] = plane.SignedDistance(in_cam[v]);
+    }
+    for (const Eigen::Vector3i& f : mesh.faces) {
+      Eigen::Vector3d ends[2];
+      int found = 0;
+      for (int e = 0; e < 3 && found < 2; ++e) {
+        const int a = f[e], b = f[(e + 1) % 3];
+        const bool pa = distance[a] >= 0, pb = distance[b] >= 0;
+        if (pa == pb) continue;
+        const double t = distance[a] / (distance[a] - distance[b]);
+        ends[found++] = in_cam[a] + t * (in_cam[b] - in_cam[a]);
+      }
+      if (found < 2 || ends[0].z() <= 1.0 || ends[1].z() <= 1.0) continue;
+      // Normal of the triangle (table frame) for the same-side test of camera and laser.
+      const Eigen::Vector3d v0 = mesh.vertices[f[0]].cast<double>(), v1 = mesh.vertices[f[1]].cast<double>(),
+                            v2 = mesh.vertices[f[2]].cast<double>();
+      const Eigen::Vector3d normal = (v1 - v0).cross(v2 - v0);
+      const double row_a = camera.Project(ends[0]).y(), row_b = camera.Project(ends[1]).y();
+      if (!std::isfinite(row_a) || !std::isfinite(row_b)) continue;
+      // Clamped before the conversion to int (far outside the image a lens model can diverge).
+      const int first =
+          static_cast<int>(std::ceil(std::clamp(std::min(row_a, row_b), 0.0, camera.height - 1.0)));
+      const int last =
+          static_cast<int>(std::floor(std::clamp(std::max(row_a, row_b), 0.0, camera.height - 1.0)));
+      for (int row = first; row <= last; ++row) {
+        // Bisection on the segment for projected row == row (the projection of a segment is monotone).
+        double lo = 0, hi = 1;
+        const bool increasing = row_b > row_a;
+        for (int it = 0; it < 60; ++it) {
+          const double mid = 0.5 * (lo + hi);
+          const double r = camera.Project(ends[0] + mid * (ends[1] - ends[0])).y();
+          if ((r < row) == increasing) {
+            lo = mid;
+          } else {
+            hi = mid;
+          }
+        }
+        const Eigen::Vector3d point_in_cam = ends[0] + 0.5 * (lo + hi) * (ends[1] - ends[0]);
+        const Eigen::Vector2d pixel = camera.Project(point_in_cam);
+        if (pixel.x() < -0.5 || pixel.x() > camera.width - 0.5) continue;
+        if (std::abs(pixel.y() - row) > 1e-6) continue;  // the projection was not monotone here
+        const Eigen::Vector3d p = table_from_cam * point_in_cam;
+        if (normal.dot(cam_centre - p) * normal.dot(laser_origin - p) <= 0) continue;  // lit side unseen
+        if (impl_->Occluded(cam_centre, p, 1e-2)) continue;    // hidden from the camera
+        if (impl_->Occluded(p, laser_origin, 1e-2)) continue;  // in the laser's shadow
+        bundle::LinePoint lp;
+        lp.row = row;
+        lp.column = pixel.x();
+        lp.point_in_cam = point_in_cam;
+        lp.point_in_world = p;
+        lp.object = static_cast<int>(mi);
+        points.push_back(lp);
+      }
+    }
+  }
+  std::sort(points.begin(), points.end(), [](const bundle::LinePoint& a, const bundle::LinePoint& b) {
+    return a.row != b.row ? a.row < b.row : a.column < b.column;
+  });
+  // A point on an edge shared by two triangles is found twice: keep one.
+  points.erase(std::unique(points.begin(), points.end(),
+                           [](const bundle::LinePoint& a, const bundle::LinePoint& b) {
+                             return a.row == b.row && std::abs(a.column - b.column) < 1e-6;
+                           }),
+               points.end());
+  return points;
+}
+
+}  // namespace rotoscan::sim

@@ -1,0 +1,74 @@
+#include "rotoscan/pipeline/accuracy.h"
+
+#include <cstdio>
+
+#include <gtest/gtest.h>
+
+#include "testing/testing.h"
+
+namespace rotoscan::pipeline {
+namespace {
+
+TEST(AccuracyTest, CompareWithTruthCountsMatchesOutliersAndMisses) {
+  laser::Line line;
+  line.points = {
+      {0, 10.1f, 100, 5, 1, 0}, {1, 10.0f, 100, 5, 1, 0}, {2, 30.0f, 100, 5, 1, 0}, {3, 12.0f, 100, 5, 1, 0}};
+  std::vector<bundle::LinePoint> truth(4);
+  truth[0].row = 0, truth[0].column = 10.0;
+  truth[1].row = 1, truth[1].column = 10.2;
+  truth[2].row = 1, truth[2].column = 50.0;  // a second crossing in row 1: the nearest counts
+  truth[3].row = 2, truth[3].column = 20.0;  // 10 px away: outlier
+  // row 3 has no truth: spurious; no truth row is missed... add one
+  truth.push_back({});
+  truth[4].row = 5, truth[4].column = 1.0;
+  const LineAccuracy a = CompareWithTruth(line, truth, 2.0);
+  EXPECT_EQ(a.truth_rows, 4u);
+  EXPECT_EQ(a.matched, 2u);
+  EXPECT_EQ(a.outliers, 1u);
+  EXPECT_EQ(a.spurious, 1u);
+  EXPECT_EQ(a.missed, 1u);
+  EXPECT_NEAR(a.mean_px(), (0.1 - 0.2) / 2, 1e-6);
+  EXPECT_NEAR(a.rms_px(), std::sqrt((0.01 + 0.04) / 2), 1e-6);
+}
+
+// The virtual scanner (sim module) renders a plane 300 mm away; a 320x240 crop of the default camera
+// (same pixel footprint: 5 degrees instead of 20) keeps the test fast.
+constexpr const char* kSmallCamera = "\"camera\": {\"width\": 320, \"height\": 240, \"hfov_deg\": 4.97}";
+
+TEST(AccuracyTest, PlaneOnTheVirtualScannerMeetsTheTarget) {
+  rotoscan::testing::ScratchDir dir;
+  auto a = RunPlaneAccuracy(300.0, dir.path(), 1, kSmallCamera);
+  ASSERT_TRUE(a.ok()) << a.status().ToString();
+  std::printf("plane at 300 mm: %zu points, mean %.4f mm, rms %.4f mm\n", a->points, a->mean_mm, a->rms_mm);
+  EXPECT_GT(a->points, 300u);
+  EXPECT_LT(a->rms_mm, 0.05);  // DESIGN.md target at 300 mm
+  EXPECT_LT(std::abs(a->mean_mm), 0.02);
+  // The line centres of the same bundle against truth/lines. With the default speckle (contrast 0.15)
+  // the error is ~0.19 px RMS at full size, above the 0.1 px target: speckle deforms the profile itself
+  // (without speckle it is 0.025 px, see the next test). Bound it here so that a regression shows.
+  auto lines = MeasureLineAccuracy(dir / "plane-300", laser::ExtractOptions{});
+  ASSERT_TRUE(lines.ok()) << lines.status().ToString();
+  std::printf("line centre with speckle: %zu matched, rms %.4f px\n", lines->matched, lines->rms_px());
+  EXPECT_GT(lines->matched, 400u);
+  EXPECT_EQ(lines->outliers, 0u);
+  EXPECT_LT(lines->rms_px(), 0.3);
+}
+
+TEST(AccuracyTest, LineCentreWithoutSpeckleIsWithinTarget) {
+  rotoscan::testing::ScratchDir dir;
+  const std::string overrides =
+      std::string(kSmallCamera) +
+      ", \"lasers\": {\"left\": {\"speckle_contrast\": 0}, \"right\": {\"speckle_contrast\": 0}}";
+  auto a = RunPlaneAccuracy(300.0, dir.path(), 1, overrides);
+  ASSERT_TRUE(a.ok()) << a.status().ToString();
+  auto lines = MeasureLineAccuracy(dir / "plane-300", laser::ExtractOptions{});
+  ASSERT_TRUE(lines.ok()) << lines.status().ToString();
+  std::printf("line centre without speckle: %zu matched, rms %.4f px\n", lines->matched, lines->rms_px());
+  EXPECT_GT(lines->matched, 400u);
+  EXPECT_LT(lines->rms_px(), 0.1);  // DESIGN.md target
+  EXPECT_EQ(MeasureLineAccuracy(dir / "nothing", laser::ExtractOptions{}).status().code(),
+            StatusCode::kNotFound);
+}
+
+}  // namespace
+}  // namespace rotoscan::pipeline

@@ -1,0 +1,345 @@
+#include <cmath>
+#include <set>
+
+#include <gtest/gtest.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rotoscan/bundle/bundle.h"
+#include "rotoscan/bundle/truth.h"
+#include "rotoscan/geometry/rigid.h"
+#include "rotoscan/sim/renderer.h"
+#include "rotoscan/sim/scene.h"
+#include "rotoscan/sim/simulate.h"
+#include "testing/testing.h"
+
+namespace rotoscan::sim {
+namespace {
+
+using bundle::LaserState;
+using geometry::LaserId;
+using rotoscan::testing::DataPath;
+using rotoscan::testing::ScratchDir;
+
+// A small noise-free camera (the default rig scaled down) and the given objects.
+Scene SmallScene(const std::string& objects_json, int width = 160, int height = 120, bool noise = false) {
+  const std::string text = R"({"camera": {"width": )" + std::to_string(width) + R"(, "height": )" +
+                           std::to_string(height) + R"(, "hfov_deg": 20, "noise": )" +
+                           (noise ? "true" : "false") +
+                           R"(, "blur_sigma_px": 0, "bit_depth": 12},
+      "lasers": {"left": {"sigma_mm": 1.0, "speckle_contrast": 0}, "right": {"sigma_mm": 1.0, "speckle_contrast": 0}},
+      "objects": )" + objects_json +
+                           "}";
+  auto scene = ParseScene(text, DataPath("."), "test scene");
+  EXPECT_TRUE(scene.ok()) << scene.status().ToString();
+  return *scene;
+}
+
+TEST(SceneTest, DefaultsMatchThePaperRig) {
+  auto scene = SceneDefaults("machine_vision");
+  ASSERT_TRUE(scene.ok());
+  const geometry::Rig& rig = scene->rig;
+  EXPECT_EQ(rig.camera.width, 1288);
+  EXPECT_EQ(rig.camera.height, 964);
+  EXPECT_NEAR(2 * geometry::RadToDeg(std::atan(644.0 / rig.camera.fx)), 20.0, 1e-9);
+  EXPECT_NEAR(geometry::RadToDeg(rig.step_angle_rad), 0.3, 1e-12);
+  EXPECT_TRUE(rig.Validate().ok());
+  // Both laser planes contain the axis and their origins; 30° from the optical axis at the centre.
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_NEAR(rig.laser_plane[k].SignedDistance(rig.axis_point_in_cam), 0.0, 1e-9);
+    EXPECT_NEAR(rig.laser_plane[k].SignedDistance(scene->laser[k].origin_in_cam), 0.0, 1e-9);
+    EXPECT_NEAR(rig.laser_plane[k].normal.dot(rig.axis_direction_in_cam), 0.0, 1e-12);
+  }
+  EXPECT_LT(scene->laser[0].origin_in_cam.x(), 0);
+  EXPECT_GT(scene->laser[1].origin_in_cam.x(), 0);
+  EXPECT_TRUE(SceneDefaults("webcam").ok());
+  EXPECT_EQ(SceneDefaults("phone").status().code(), StatusCode::kInvalidArgument);
+}
+
+TEST(SceneTest, BadSceneFilesNameTheField) {
+  const std::pair<std::string, std::string> cases[] = {
+      {R"({"camera": {"width": -5}})", "camera.width"},
+      {R"({"camra": {}})", "camra"},
+      {R"({"camera": {"bit_depth": 10}})", "camera.bit_depth"},
+      {R"({"camera": {"distortion": [0, 0, 0]}})", "camera.distortion"},
+      {R"({"lasers": {"left": {"sigma_mm": 0}}})", "lasers.left.sigma_mm"},
+      {R"({"lasers": {"right": {"power": "high"}}})", "lasers.right.power"},
+      {R"({"table": {"axis_direction": [0, 0, 0]}})", "table.axis_direction"},
+      {R"({"objects": [{"type": "cube"}]})", "objects[0].type"},
+      {R"({"objects": [{"type": "sphere"}, {"radius_mm": 3}]})", "objects[1].type"},
+      {R"({"objects": [{"type": "sphere", "color": [1, 2, 0]}]})", "objects[0].color"},
+      {R"({"objects": [{"type": "mesh"}]})", "objects[0].file"},
+      {R"({"preset": "phone"})", "preset"},
+      {R"({"camera": )", "JSON"},
+  };
+  for (const auto& [text, field] : cases) {
+    auto scene = ParseScene(text, ".", "bad.json");
+    ASSERT_FALSE(scene.ok()) << text;
+    EXPECT_EQ(scene.status().code(), StatusCode::kInvalidArgument);
+    EXPECT_NE(scene.status().message().find(field), std::string::npos) << scene.status().ToString();
+    EXPECT_NE(scene.status().message().find("bad.json"), std::string::npos);
+  }
+  auto missing = ParseScene(R"({"objects": [{"type": "mesh", "file": "nothing.obj"}]})", ".", "s.json");
+  ASSERT_TRUE(missing.ok());
+  EXPECT_EQ(Renderer::Create(*missing).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(LoadScene("/nonexistent/scene.json").status().code(), StatusCode::kNotFound);
+}
+
+// The line truth lies on the laser plane and on the surface, and projects to its (column, row).
+TEST(LineTruthTest, AgreesWithPlaneIntersection) {
+  const Scene scene =
+      SmallScene(R"([{"type": "plane", "distance_mm": 290, "angle_deg": 20, "size_mm": [120, 100]}])");
+  auto renderer = Renderer::Create(scene);
+  ASSERT_TRUE(renderer.ok()) << renderer.status().ToString();
+  // The object plane in the camera frame: z' = 0 of cam_from_object.
+  const Eigen::Isometry3d cam_from_object =
+      Eigen::Translation3d(0, 0, 290) * Eigen::AngleAxisd(geometry::DegToRad(20), Eigen::Vector3d::UnitY());
+  const Eigen::Vector3d normal = cam_from_object.linear().col(2);
+  const double offset = -normal.dot(cam_from_object.translation());
+  for (LaserId id : {LaserId::kLeft, LaserId::kRight}) {
+    const auto truth = (*renderer)->LineTruth(id, 0.0);
+    ASSERT_GT(truth.size(), 60u);
+    std::set<int> rows;
+    for (const bundle::LinePoint& p : truth) {
+      if (p.object != 1) continue;
+      rows.insert(p.row);
+      EXPECT_NEAR(scene.rig.laser(id).SignedDistance(p.point_in_cam), 0.0, 1e-3);
+      EXPECT_NEAR(normal.dot(p.point_in_cam) + offset, 0.0, 1e-3);
+      const Eigen::Vector2d pixel = scene.rig.camera.Project(p.point_in_cam);
+      EXPECT_NEAR(pixel.x(), p.column, 0.01);
+      EXPECT_NEAR(pixel.y(), p.row, 0.01);
+      EXPECT_THAT(scene.rig.WorldFromCamAtAngle(0.0) * p.point_in_cam,
+                  testing::EigenNear(p.point_in_world, 1e-6));
+    }
+    EXPECT_GT(rows.size(), 60u);  // the plane spans most rows
+  }
+}
+
+// The rendered line (laser-on minus off, red channel) is centred on the true line.
+TEST(LineTruthTest, RenderedLineCentreMatchesTruth) {
+  const Scene scene =
+      SmallScene(R"([{"type": "plane", "distance_mm": 300, "angle_deg": -15, "size_mm": [120, 100]}])");
+  auto renderer = Renderer::Create(scene);
+  ASSERT_TRUE(renderer.ok());
+  const RenderedStep step = (*renderer)->RenderStep(0.0, 1);
+  const auto truth = (*renderer)->LineTruth(LaserId::kRight, 0.0);
+  cv::Mat on, off, diff;
+  cv::extractChannel(step.frames[static_cast<int>(LaserState::kRight)], on, 2);
+  cv::extractChannel(step.frames[static_cast<int>(LaserState::kOff)], off, 2);
+  cv::subtract(on, off, diff, cv::noArray(), CV_64F);
+  int checked = 0;
+  double worst = 0;
+  for (const bundle::LinePoint& p : truth) {
+    if (p.object != 1 || p.column < 10 || p.column > scene.rig.camera.width - 10) continue;
+    double sum = 0, moment = 0;
+    const int c0 = static_cast<int>(std::round(p.column));
+    for (int x = c0 - 6; x <= c0 + 6; ++x) {
+      const double v = diff.at<double>(p.row, x);
+      sum += v;
+      moment += v * x;
+    }
+    ASSERT_GT(sum, 100.0) << "row " << p.row;
+    worst = std::max(worst, std::abs(moment / sum - p.column));
+    ++checked;
+  }
+  EXPECT_GT(checked, 60);
+  EXPECT_LT(worst, 0.05);
+}
+
+TEST(RendererTest, CheckerboardCornersFoundWhereProjected) {
+  Scene scene = SmallScene(R"([{"type": "checkerboard", "cols": 9, "rows": 6, "square_mm": 7}])", 640, 480);
+  scene.sensor.supersampling = 1;  // the checker is box-filtered analytically over the pixel
+  scene.sensor.bit_depth = 8;
+  // cornerSubPix has a sub-pixel-phase bias of up to ~0.07 px on unblurred box-filtered edges (measured
+  // here: the rendered edges themselves sit on the truth); a lens-like blur removes it.
+  scene.sensor.blur_sigma_px = 1.5;
+  const Eigen::Isometry3d cam_from_target = Eigen::Translation3d(-28, -17.5, 330) *
+                                            Eigen::AngleAxisd(0.25, Eigen::Vector3d::UnitY()) *
+                                            Eigen::AngleAxisd(-0.2, Eigen::Vector3d::UnitX());
+  scene.objects[0].has_pose = true;
+  scene.objects[0].table_from_object = scene.rig.CamFromTable().inverse() * cam_from_target;
+  auto renderer = Renderer::Create(scene);
+  ASSERT_TRUE(renderer.ok());
+  const RenderedStep step = (*renderer)->RenderStep(0.0, 1, {false, false, false, true});
+  cv::Mat gray;
+  cv::cvtColor(step.frames[3], gray, cv::COLOR_BGR2GRAY);
+  std::vector<cv::Point2f> corners;
+  ASSERT_TRUE(cv::findChessboardCorners(gray, cv::Size(9, 6), corners));
+  cv::cornerSubPix(gray, corners, cv::Size(5, 5), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+  double worst = 0;
+  for (int j = 0; j < 6; ++j) {
+    for (int i = 0; i < 9; ++i) {
+      const Eigen::Vector2d truth =
+          scene.rig.camera.Project(cam_from_target * Eigen::Vector3d(7.0 * i, 7.0 * j, 0));
+      double best = 1e9;  // OpenCV may order the corners either way round
+      for (const cv::Point2f& c : corners)
+        best = std::min(best, std::hypot(c.x - truth.x(), c.y - truth.y()));
+      worst = std::max(worst, best);
+    }
+  }
+  EXPECT_LT(worst, 0.05);
+}
+
+// Flat field: mean and variance follow DN = k e, var = k^2 (e + read^2) + 1/12 (quantisation).
+TEST(SensorTest, FlatFieldNoiseMatchesShotAndReadNoise) {
+  Scene scene = SmallScene("[]", 200, 200, true);
+  scene.sensor.read_noise_e = 8.0;
+  auto renderer = Renderer::Create(scene);
+  ASSERT_TRUE(renderer.ok());
+  const double k = scene.sensor.DnPerElectron();
+  for (double electrons : {200.0, 3000.0}) {
+    const cv::Mat flat(200, 200, CV_32FC3, cv::Scalar::all(electrons));
+    const cv::Mat dn = (*renderer)->ApplySensor(flat, 42);
+    ASSERT_EQ(dn.type(), CV_16UC3);
+    cv::Scalar mean, stddev;
+    cv::meanStdDev(dn.reshape(1), mean, stddev);
+    const double expected_var = k * k * (electrons + 64.0) + 1.0 / 12.0;
+    EXPECT_NEAR(mean[0], k * electrons, 0.02 * k * electrons + 0.1);
+    EXPECT_NEAR(stddev[0] * stddev[0], expected_var, 0.04 * expected_var);  // 120k samples: ~0.4 % std error
+  }
+  // Saturation at the full well.
+  const cv::Mat bright(8, 8, CV_32FC3, cv::Scalar::all(10 * scene.sensor.full_well_e));
+  double lo = 0, hi = 0;
+  cv::minMaxLoc((*renderer)->ApplySensor(bright, 1).reshape(1), &lo, &hi);
+  EXPECT_EQ(lo, scene.sensor.MaxDn());
+}
+
+// Paper Fig. 2: each laser is shadowed by the box in its own region; the other laser lights it.
+TEST(RendererTest, LasersShadowDifferentRegions) {
+  const Scene with_box = SmallScene(R"([{"type": "box", "size_mm": [30, 30, 60]}])");
+  const Scene empty = SmallScene("[]");
+  auto boxed = Renderer::Create(with_box);
+  auto bare = Renderer::Create(empty);
+  ASSERT_TRUE(boxed.ok());
+  ASSERT_TRUE(bare.ok());
+  std::set<int> lost[2];
+  for (int k = 0; k < 2; ++k) {
+    std::set<int> table_rows;
+    for (const auto& p : (*boxed)->LineTruth(static_cast<LaserId>(k), 0.0)) {
+      if (p.object == 0) table_rows.insert(p.row);
+    }
+    for (const auto& p : (*bare)->LineTruth(static_cast<LaserId>(k), 0.0)) {
+      if (!table_rows.count(p.row)) lost[k].insert(p.row);
+    }
+  }
+  EXPECT_FALSE(lost[0].empty());
+  EXPECT_FALSE(lost[1].empty());
+  // The box's front faces are lit by each laser on a different face: left sees -x face, right +x face.
+  const auto left = (*boxed)->LineTruth(LaserId::kLeft, geometry::DegToRad(30));
+  const auto right = (*boxed)->LineTruth(LaserId::kRight, geometry::DegToRad(30));
+  int left_on_box = 0, right_on_box = 0;
+  for (const auto& p : left) left_on_box += p.object == 1;
+  for (const auto& p : right) right_on_box += p.object == 1;
+  EXPECT_GT(left_on_box, 10);
+  EXPECT_GT(right_on_box, 10);
+}
+
+TEST(RendererTest, SpotMeshWithTextureLoads) {
+  Scene scene = SmallScene(R"([{"type": "mesh", "file": "meshes/spot/spot.obj",
+                                "texture": "meshes/spot/spot_texture.png", "height_mm": 80}])");
+  auto renderer = Renderer::Create(scene);
+  ASSERT_TRUE(renderer.ok()) << renderer.status().ToString();
+  const bundle::TruthMesh mesh = (*renderer)->ObjectMesh();
+  EXPECT_EQ(mesh.faces.size(), 5856u);
+  float lo = 1e9, hi = -1e9;
+  for (const auto& v : mesh.vertices) lo = std::min(lo, v.z()), hi = std::max(hi, v.z());
+  EXPECT_NEAR(lo, 0.0, 1e-3);
+  EXPECT_NEAR(hi, 80.0, 1e-3);
+  const RenderedStep step = (*renderer)->RenderStep(0.0, 3, {false, false, false, true});
+  // The texture is not uniform: the natural image varies in color over the cow.
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(step.frames[3], mean, stddev);
+  EXPECT_GT(stddev[0], 50.0);
+}
+
+// DESIGN.md "What real laser frames look like": the webcam preset saturates the red line and its color
+// matrix makes green drop under it.
+TEST(RendererTest, WebcamPresetSaturatesAndDropsGreen) {
+  auto scene = ParseScene(R"({"preset": "webcam", "camera": {"width": 160, "height": 120, "hfov_deg": 20,
+      "noise": false}, "objects": [{"type": "plane", "distance_mm": 300, "size_mm": [120, 100]}]})",
+                          ".", "webcam scene");
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  auto renderer = Renderer::Create(*scene);
+  ASSERT_TRUE(renderer.ok());
+  const RenderedStep step = (*renderer)->RenderStep(0.0, 1, {true, false, true, false});
+  const cv::Mat& on = step.frames[0];
+  const cv::Mat& off = step.frames[2];
+  int saturated = 0, dropped = 0, rows = 0;
+  for (int y = 10; y < 110; ++y) {
+    int peak = 0;
+    for (int x = 1; x < on.cols; ++x) {
+      if (on.at<cv::Vec3b>(y, x)[2] > on.at<cv::Vec3b>(y, peak)[2]) peak = x;
+    }
+    if (on.at<cv::Vec3b>(y, peak)[2] < 100) continue;
+    ++rows;
+    saturated += on.at<cv::Vec3b>(y, peak)[2] == 255;
+    dropped += on.at<cv::Vec3b>(y, peak)[1] + 10 < off.at<cv::Vec3b>(y, peak)[1];
+  }
+  EXPECT_GT(rows, 50);
+  EXPECT_GT(saturated, rows / 2);
+  EXPECT_GT(dropped, rows / 2);
+}
+
+TEST(SimulateTest, ScanBundleIsDeterministicAndHasTruth) {
+  ScratchDir scratch;
+  const Scene scene = SmallScene(R"([{"type": "sphere", "radius_mm": 30, "segments": 32}])", 64, 48, true);
+  for (int threads : {1, 3}) {
+    SimulateOptions options;
+    options.out = scratch / ("scan" + std::to_string(threads));
+    options.steps = 3;
+    options.threads = threads;
+    ASSERT_TRUE(Simulate(scene, options, nullptr).ok());
+  }
+  auto a = bundle::ReadBundle(scratch / "scan1");
+  auto b = bundle::ReadBundle(scratch / "scan3");
+  ASSERT_TRUE(a.ok()) << a.status().ToString();
+  ASSERT_TRUE(b.ok());
+  ASSERT_EQ(a->frames.size(), 12u);
+  EXPECT_TRUE(a->has_truth);
+  for (std::size_t i = 0; i < a->frames.size(); ++i) {
+    EXPECT_EQ(cv::norm(*bundle::ReadFrame(*a, i), *bundle::ReadFrame(*b, i), cv::NORM_INF), 0.0);
+  }
+  auto rig = geometry::ReadRigYaml(bundle::TruthRigPath(a->directory));
+  ASSERT_TRUE(rig.ok());
+  EXPECT_NEAR(rig->step_angle_rad, scene.rig.step_angle_rad, 1e-12);
+  auto mesh = bundle::ReadPlyMesh(bundle::TruthMeshPath(a->directory));
+  ASSERT_TRUE(mesh.ok());
+  EXPECT_GT(mesh->faces.size(), 500u);
+  auto line = bundle::ReadLineTruth(*a, a->frames[a->FindFrame(2, LaserState::kLeft)]);
+  ASSERT_TRUE(line.ok()) << line.status().ToString();
+  EXPECT_GT(line->size(), 20u);
+  EXPECT_NEAR(a->frames[a->FindFrame(2, LaserState::kLeft)].table_angle_rad, 2 * scene.rig.step_angle_rad,
+              1e-9);
+  // An existing bundle is not overwritten silently.
+  SimulateOptions again;
+  again.out = scratch / "scan1";
+  again.steps = 1;
+  EXPECT_EQ(Simulate(scene, again, nullptr).code(), StatusCode::kFailedPrecondition);
+}
+
+TEST(SimulateTest, CalibrationBundlesHavePoses) {
+  ScratchDir scratch;
+  const Scene scene = SmallScene("[]", 96, 72);
+  const std::pair<SimulateKind, std::size_t> kinds[] = {{SimulateKind::kCalibrationObject, 8},
+                                                        {SimulateKind::kCheckerboard, 2},
+                                                        {SimulateKind::kTableCheckerboard, 8}};
+  for (const auto& [kind, frames] : kinds) {
+    SimulateOptions options;
+    options.out = scratch / ("cal" + std::to_string(static_cast<int>(kind)));
+    options.kind = kind;
+    options.steps = 2;
+    ASSERT_TRUE(Simulate(scene, options, nullptr).ok());
+    auto b = bundle::ReadBundle(options.out);
+    ASSERT_TRUE(b.ok()) << b.status().ToString();
+    EXPECT_EQ(b->header.kind, bundle::BundleKind::kCalibration);
+    EXPECT_EQ(b->frames.size(), frames);
+    auto poses = bundle::ReadTargetPoses(bundle::TruthPosesPath(options.out));
+    ASSERT_TRUE(poses.ok());
+    EXPECT_EQ(poses->size(), 2u);
+  }
+  EXPECT_EQ(ParseSimulateKind("board").status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace rotoscan::sim
