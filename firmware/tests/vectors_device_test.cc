@@ -8,25 +8,14 @@
 #include <string>
 #include <vector>
 
+#include "golden_vectors.h"
 #include "rotoscan_protocol.h"
 #include "sim_device.h"
 
 namespace rotoscan::firmware_test {
 namespace {
 
-const std::string kDir = std::string(ROTOSCAN_SOURCE_DIR) + "/protocol/vectors/";
-
-std::vector<uint8_t> ReadHex(const std::string& path) {
-  std::ifstream in(path);
-  std::vector<uint8_t> bytes;
-  std::string line;
-  while (std::getline(in, line)) {
-    std::istringstream words(line.substr(0, line.find('#')));
-    std::string word;
-    while (words >> word) bytes.push_back(static_cast<uint8_t>(std::stoul(word, nullptr, 16)));
-  }
-  return bytes;
-}
+using protocol_testing::ReadHexVector;
 
 uint8_t DataReplyOf(uint8_t command) {
   switch (command) {
@@ -38,15 +27,13 @@ uint8_t DataReplyOf(uint8_t command) {
 }
 
 TEST(FirmwareVectors, TheDeviceAnswersEveryGoldenFrame) {
-  std::ifstream in(kDir + "vectors.json");
-  ASSERT_TRUE(in.good());
-  const nlohmann::json manifest = nlohmann::json::parse(in);
+  const nlohmann::json manifest = protocol_testing::ReadVectorManifest();
   int checked = 0;
   for (const nlohmann::json& v : manifest) {
     const std::string file = v.at("file");
     SCOPED_TRACE(file);
     SimDevice dev;
-    dev.SendBytes(ReadHex(kDir + file));
+    dev.SendBytes(ReadHexVector(file));
     dev.Drain();
     ASSERT_EQ(dev.answers().size(), 1u);
     const proto_msg_t& a = dev.answers()[0];

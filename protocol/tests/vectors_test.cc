@@ -10,31 +10,15 @@
 #include <string>
 #include <vector>
 
+#include "golden_vectors.h"
 #include "rotoscan_protocol.h"
 
 namespace {
 
 using nlohmann::json;
 
-const std::string kDir = std::string(ROTOSCAN_SOURCE_DIR) + "/protocol/vectors/";
-
-// Reads a .hex vector: whitespace-separated two-digit hex bytes; '#' starts a comment to the end of line.
-std::vector<uint8_t> ReadHex(const std::string& path) {
-  std::ifstream in(path);
-  EXPECT_TRUE(in.good()) << path;
-  std::vector<uint8_t> bytes;
-  std::string line;
-  while (std::getline(in, line)) {
-    line = line.substr(0, line.find('#'));
-    std::istringstream words(line);
-    std::string word;
-    while (words >> word) {
-      EXPECT_EQ(word.size(), 2u) << path << ": '" << word << "'";
-      bytes.push_back(static_cast<uint8_t>(std::stoul(word, nullptr, 16)));
-    }
-  }
-  return bytes;
-}
+using rotoscan::protocol_testing::ReadHexVector;
+using rotoscan::protocol_testing::ReadVectorManifest;
 
 json Fields(const proto_msg_t& m) {
   const auto& b = m.body;
@@ -133,20 +117,15 @@ int ErrorCode(const std::string& name) {
   return 1;
 }
 
-json LoadManifest() {
-  std::ifstream in(kDir + "vectors.json");
-  EXPECT_TRUE(in.good());
-  return json::parse(in);
-}
 
 TEST(ProtocolVectors, EveryGoldenFrameDecodesToItsListedValues) {
-  const json manifest = LoadManifest();
+  const json manifest = ReadVectorManifest();
   ASSERT_GE(manifest.size(), 25u);
   int valid = 0;
   for (const json& v : manifest) {
     const std::string file = v.at("file");
     SCOPED_TRACE(file);
-    const std::vector<uint8_t> wire = ReadHex(kDir + file);
+    const std::vector<uint8_t> wire = ReadHexVector(file);
     ASSERT_FALSE(wire.empty());
     EXPECT_EQ(wire.back(), 0x00) << "a frame ends with its delimiter";
     proto_msg_t m;
@@ -172,7 +151,7 @@ TEST(ProtocolVectors, EveryGoldenFrameDecodesToItsListedValues) {
 
 // One frame checked by hand against the README's byte-by-byte walk-through, independently of the codec.
 TEST(ProtocolVectors, PingMatchesTheReadmeByteByByte) {
-  const std::vector<uint8_t> wire = ReadHex(kDir + "03_ping.hex");
+  const std::vector<uint8_t> wire = ReadHexVector("03_ping.hex");
   const std::vector<uint8_t> expected = {0x04, 0x01, 0x02, 0x02,  // COBS code, version 1, PING, seq lo
                                          0x0D, 0xEF, 0xCD, 0xAB, 0x89, 0x67,
                                          0x45, 0x23,                           // code for the zero seq hi

@@ -2,7 +2,7 @@
 // frames/s, >= 20x a straightforward OpenCV centre-of-mass pipeline, within 2x of the memory-bandwidth
 // bound). All in one run so the figures are comparable:
 //
-//   BM_ExtractTriangulate/<estimator>  our extractor + triangulation (distorted camera, both planes)
+//   BM_ExtractTriangulate/<estimator>/<smoothing>  our extractor + triangulation (distorted camera)
 //   BM_ExtractBgr                      the same on 3-channel BGR frames (channel split included)
 //   BM_HorusBaseline                   what bq Horus does, with whole-image OpenCV operations as Horus does
 //                                      with NumPy: subtract, threshold, blur, a window around each row's
@@ -18,6 +18,7 @@
 #include <emmintrin.h>
 
 #include <cmath>
+#include <string>
 #include <vector>
 
 #include <opencv2/calib3d.hpp>
@@ -102,6 +103,7 @@ void BM_ExtractTriangulate(benchmark::State& state) {
   const Frames& f = GrayFrames();
   rotoscan::laser::ExtractOptions options;
   options.estimator = static_cast<rotoscan::laser::Estimator>(state.range(0));
+  if (state.range(1) == 0) options.smooth_half_rows = 0;
   rotoscan::laser::LineExtractor extractor(options);
   static const rotoscan::laser::Triangulator triangulator(Camera());
   const rotoscan::geometry::Plane plane = Laser();
@@ -120,9 +122,15 @@ void BM_ExtractTriangulate(benchmark::State& state) {
   SetCounters(state, 2u * kWidth * kHeight);
   state.counters["points_per_frame"] =
       static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
-  state.SetLabel(rotoscan::laser::EstimatorName(options.estimator));
+  state.SetLabel(std::string(rotoscan::laser::EstimatorName(options.estimator)) +
+                 (options.smooth_half_rows > 0 ? " smoothed" : " per row"));
 }
-BENCHMARK(BM_ExtractTriangulate)->DenseRange(0, 3)->Unit(benchmark::kMicrosecond);
+// Arguments: estimator (0 com = the default, 1 parabolic, 2 gaussian, 3 zero-crossing), along-line
+// smoothing (1 = the default +-12 rows, 0 = off).
+BENCHMARK(BM_ExtractTriangulate)
+    ->ArgsProduct({{0, 1, 2, 3}, {1}})
+    ->Args({0, 0})
+    ->Unit(benchmark::kMicrosecond);
 
 void BM_ExtractBgr(benchmark::State& state) {
   const Frames& f = BgrFrames();

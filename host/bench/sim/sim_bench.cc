@@ -2,8 +2,9 @@
 // on one core). Run: build/host/bench/sim/sim_bench
 //
 // BM_RenderStep renders a whole table step (left, right, off, natural) from one set of camera rays, which
-// is how bundles are rendered; its time divided by 4 is the cost per frame (reported as ms_per_frame).
-// BM_RenderLaserFrame renders one laser frame alone (rays + shading + sensor of that frame only).
+// is how bundles are rendered; frames_per_s counts its 4 frames. BM_RenderLaserFrame and
+// BM_RenderNaturalFrame render one frame alone (camera rays + shading + sensor; the natural frame also
+// casts the lamp's shadow rays).
 #include <benchmark/benchmark.h>
 
 #include "rotoscan/sim/renderer.h"
@@ -11,55 +12,50 @@
 
 namespace {
 
-std::unique_ptr<rotoscan::sim::Renderer> MakeRenderer() {
-  // A sphere of 316 segments: 316 * 158 * 2 ~ 100k triangles, filling a good part of the view.
-  auto scene = rotoscan::sim::ParseScene(
-      R"({"objects": [{"type": "sphere", "radius_mm": 40, "segments": 316}]})", ".", "bench");
-  if (!scene.ok()) return nullptr;
-  auto renderer = rotoscan::sim::Renderer::Create(*scene);
-  return renderer.ok() ? std::move(renderer).value() : nullptr;
+// A sphere of 316 segments: 316 * 158 * 2 ~ 100k triangles, filling a good part of the view. Built once
+// for all benchmarks (the ray grid and the BVH take about a second).
+const rotoscan::sim::Renderer* SharedRenderer(benchmark::State& state) {
+  static const std::unique_ptr<rotoscan::sim::Renderer> renderer = [] {
+    auto scene = rotoscan::sim::ParseScene(
+        R"({"objects": [{"type": "sphere", "radius_mm": 40, "segments": 316}]})", ".", "bench");
+    if (!scene.ok()) return std::unique_ptr<rotoscan::sim::Renderer>();
+    auto created = rotoscan::sim::Renderer::Create(*scene);
+    return created.ok() ? std::move(created).value() : nullptr;
+  }();
+  if (!renderer) state.SkipWithError("scene setup failed");
+  return renderer.get();
 }
 
-void BM_RenderStep(benchmark::State& state) {
-  auto renderer = MakeRenderer();
-  if (!renderer) {
-    state.SkipWithError("scene setup failed");
-    return;
-  }
+// Renders steps with the frames of `mask`; counts frames per second of real time (1000 / that = ms per
+// frame).
+void RenderSteps(benchmark::State& state, const rotoscan::sim::FrameMask& mask) {
+  const rotoscan::sim::Renderer* renderer = SharedRenderer(state);
+  if (renderer == nullptr) return;
   uint64_t seed = 1;
   for (auto _ : state) {
-    auto step = renderer->RenderStep(0.01 * static_cast<double>(seed), seed);
+    auto step = renderer->RenderStep(0.01 * static_cast<double>(seed), seed, mask);
     benchmark::DoNotOptimize(step.frames[0].data);
     ++seed;
   }
+  int frames = 0;
+  for (bool wanted : mask) frames += wanted ? 1 : 0;
   state.counters["triangles"] = static_cast<double>(renderer->TriangleCount());
-  // Frames per second of real time; 1000 / frames_per_s = ms per frame.
-  state.counters["frames_per_s"] =
-      benchmark::Counter(4.0 * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["frames_per_s"] = benchmark::Counter(static_cast<double>(frames * state.iterations()),
+                                                      benchmark::Counter::kIsRate);
 }
+
+void BM_RenderStep(benchmark::State& state) { RenderSteps(state, rotoscan::sim::kAllFrames); }
 BENCHMARK(BM_RenderStep)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(2.0);
 
-void BM_RenderLaserFrame(benchmark::State& state) {
-  auto renderer = MakeRenderer();
-  if (!renderer) {
-    state.SkipWithError("scene setup failed");
-    return;
-  }
-  uint64_t seed = 1;
-  for (auto _ : state) {
-    auto step = renderer->RenderStep(0.01 * static_cast<double>(seed), seed, {true, false, false, false});
-    benchmark::DoNotOptimize(step.frames[0].data);
-    ++seed;
-  }
-}
+void BM_RenderLaserFrame(benchmark::State& state) { RenderSteps(state, {true, false, false, false}); }
 BENCHMARK(BM_RenderLaserFrame)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(2.0);
 
+void BM_RenderNaturalFrame(benchmark::State& state) { RenderSteps(state, {false, false, false, true}); }
+BENCHMARK(BM_RenderNaturalFrame)->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(2.0);
+
 void BM_LineTruth(benchmark::State& state) {
-  auto renderer = MakeRenderer();
-  if (!renderer) {
-    state.SkipWithError("scene setup failed");
-    return;
-  }
+  const rotoscan::sim::Renderer* renderer = SharedRenderer(state);
+  if (renderer == nullptr) return;
   for (auto _ : state) {
     auto truth = renderer->LineTruth(rotoscan::geometry::LaserId::kLeft, 0.1);
     benchmark::DoNotOptimize(truth.data());

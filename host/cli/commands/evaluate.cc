@@ -1,16 +1,21 @@
-// rotoscan evaluate: Compare a point cloud or mesh with ground truth (distance, coverage, color error)
+// rotoscan evaluate: Compare a point cloud with ground truth (distance, coverage, color error), or with
+// --lines the line extraction of a bundle against truth/lines.
 #include <cstdio>
 #include <ostream>
 
 #include "command.h"
+#include "rotoscan/cloud/cloud.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/pipeline/accuracy.h"
+#include "rotoscan/pipeline/evaluate.h"
 
 namespace rotoscan::cli {
 
 struct EvaluateCommandOptions {
-  std::string cloud, truth, lines;
+  std::string cloud, truth, lines, scene, report;
   std::string estimator = "com";
   size_t max_frames = 0;
+  pipeline::EvaluateOptions evaluate;
 };
 
 int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
@@ -32,18 +37,46 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
     *context.out << buffer;
     return kExitOk;
   }
-  return NotBuilt(
-      context, "evaluate",
-      "cloud against the true mesh (distance, coverage, color error); only --lines BUNDLE is built");
+  if (o.cloud.empty() || o.truth.empty()) {
+    *context.err << "rotoscan evaluate: give CLOUD.ply --truth BUNDLE (or --lines BUNDLE)\n";
+    return kExitUsage;
+  }
+  Status checked = o.evaluate.Check();
+  if (!checked.ok()) return fail(checked);
+  auto cloud = cloud::ReadPly(o.cloud);
+  if (!cloud.ok()) return fail(cloud.status());
+  if (cloud->empty()) return fail(InvalidArgumentError(o.cloud + ": the cloud has no points"));
+  auto truth = pipeline::LoadTruthSurface(o.truth, o.scene);
+  if (!truth.ok()) return fail(truth.status());
+  auto views = pipeline::LoadEvaluationViews(o.truth);
+  if (!views.ok()) return fail(views.status());
+  auto report = pipeline::EvaluateCloud(*cloud, *truth, *views, o.evaluate, context.progress);
+  if (!report.ok()) return fail(report.status());
+  if (!o.report.empty()) {
+    Status written = WriteFileAtomically(o.report, pipeline::EvaluationJson(*report));
+    if (!written.ok()) return fail(written);
+  }
+  *context.out << pipeline::EvaluationSummary(*report);
+  return kExitOk;
 }
 
 void RegisterEvaluate(CLI::App& app, const Context& context, int* exit_code) {
   CLI::App* sub = app.add_subcommand(
-      "evaluate", "Compare a point cloud or mesh with ground truth (distance, coverage, color error)");
+      "evaluate", "Compare a point cloud with ground truth (distance, coverage, color error)");
   static EvaluateCommandOptions o;
   o = EvaluateCommandOptions{};  // Main() may run more than once in a process (tests)
-  sub->add_option("cloud", o.cloud, "point cloud (PLY)");
-  sub->add_option("--truth", o.truth, "bundle with truth/ or a reference mesh");
+  sub->add_option("cloud", o.cloud, "point cloud (PLY) in the table frame");
+  sub->add_option("--truth", o.truth, "virtual scanner bundle with truth/ (object.ply, rig.yaml)");
+  sub->add_option("--scene", o.scene,
+                  "the scene JSON the bundle was rendered from: true colors from its textures (exact) "
+                  "instead of truth/object.ply's vertex colors");
+  sub->add_option("--report", o.report, "write the figures as JSON to this file");
+  sub->add_option("--radius", o.evaluate.coverage_radius_mm,
+                  "coverage radius, mm (0: max(0.5, 0.6 x largest radius x table step))")
+      ->capture_default_str();
+  sub->add_option("--spacing", o.evaluate.sample_spacing_mm, "surface sample spacing for coverage, mm")
+      ->capture_default_str();
+  sub->add_option("--threads", o.evaluate.threads, "worker threads (0: all cores)");
   sub->add_option("--lines", o.lines,
                   "a virtual scanner bundle: line centre error of the extraction against truth/lines");
   sub->add_option("--estimator", o.estimator, "sub-pixel estimator for --lines")->capture_default_str();

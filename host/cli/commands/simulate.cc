@@ -1,6 +1,6 @@
 // rotoscan simulate: Render scan or calibration bundles on the virtual scanner (with ground truth).
 //   rotoscan simulate SCENE.json --out DIR [--kind scan|calib-object|checkerboard|table-checkerboard]
-//                    [--steps N] [--threads N] [--overwrite] [--no-truth]
+//                    [--steps N] [--threads N] [--overwrite | --resume] [--no-truth]
 #include <memory>
 #include <ostream>
 
@@ -17,6 +17,7 @@ struct SimulateCommandOptions {
   int steps = 0;
   int threads = 0;
   bool overwrite = false;
+  bool resume = false;
   bool no_truth = false;
 };
 
@@ -31,6 +32,7 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   sim_options.steps = options.steps;
   sim_options.threads = options.threads;
   sim_options.overwrite = options.overwrite;
+  sim_options.resume = options.resume;
   sim_options.truth = !options.no_truth;
   const Status status = sim::Simulate(*scene, sim_options, context.progress);
   if (!status.ok()) return ReportStatus(context, "simulate", status);
@@ -50,7 +52,11 @@ void RegisterSimulate(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--steps", options->steps, "table steps (scan) or poses/angles (calibration); 0: default")
       ->check(CLI::Range(0, 1000000));
   sub->add_option("--threads", options->threads, "render threads (0: all cores)")->check(CLI::Range(0, 1024));
-  sub->add_flag("--overwrite", options->overwrite, "replace an existing bundle");
+  auto* overwrite =
+      sub->add_flag("--overwrite", options->overwrite, "replace an existing (or an interrupted) bundle");
+  sub->add_flag("--resume", options->resume,
+                "finish an interrupted bundle (same scene and options): only missing frames are rendered")
+      ->excludes(overwrite);
   sub->add_flag("--no-truth", options->no_truth, "do not write truth/");
   sub->callback([options, &context, exit_code] { *exit_code = RunSimulate(*options, context); });
 }

@@ -91,7 +91,7 @@ TEST(BundleTest, RoundTripsHeaderFramesAndImages) {
   auto image = ReadFrame(*bundle, i);
   ASSERT_TRUE(image.ok()) << image.status().ToString();
   EXPECT_EQ(cv::norm(*image, TestImage(9), cv::NORM_INF), 0.0);  // lossless
-  EXPECT_FALSE(fs::exists(dir.string() + ".partial-" + std::to_string(::getpid())));
+  EXPECT_FALSE(fs::exists(BundleWriter::PartialDirectory(dir)));
 }
 
 TEST(BundleTest, SixteenBitGrayFramesAreLossless) {
@@ -144,14 +144,24 @@ TEST(BundleTest, FramesFromManyThreads) {
   for (int s = 0; s < 20; ++s) EXPECT_EQ(bundle->frames[s].step, s);
 }
 
-TEST(BundleTest, UnfinishedWriterLeavesNothing) {
+TEST(BundleTest, UnfinishedWriterLeavesNoBundle) {
   ScratchDir scratch;
+  {
+    auto writer = BundleWriter::Create(scratch / "kept", SmallHeader());
+    ASSERT_TRUE(writer.ok());
+    ASSERT_TRUE((*writer)->AddFrame(FrameRecord{}, TestImage(0)).ok());
+  }
+  // Nothing under the final name; the frames stay in the partial directory to be resumed.
+  EXPECT_FALSE(fs::exists(scratch / "kept"));
+  EXPECT_TRUE(fs::exists(BundleWriter::PartialDirectory(scratch / "kept") / "frames" / "s0000_off.png"));
   {
     auto writer = BundleWriter::Create(scratch / "gone", SmallHeader());
     ASSERT_TRUE(writer.ok());
     ASSERT_TRUE((*writer)->AddFrame(FrameRecord{}, TestImage(0)).ok());
+    (*writer)->Discard();
   }
-  EXPECT_TRUE(fs::is_empty(scratch.path()));
+  EXPECT_FALSE(fs::exists(scratch / "gone"));
+  EXPECT_FALSE(fs::exists(BundleWriter::PartialDirectory(scratch / "gone")));
 }
 
 TEST(BundleTest, ExistingDirectoryNeedsOverwrite) {
@@ -311,6 +321,121 @@ TEST(TruthTest, LineTruthAndPosesRoundTrip) {
   ASSERT_EQ(read_poses->size(), 2u);
   EXPECT_EQ((*read_poses)[1].step, 5);
   EXPECT_THAT((*read_poses)[1].cam_from_target.matrix(), EigenNear(poses[1].cam_from_target.matrix(), 1e-10));
+}
+
+}  // namespace
+}  // namespace rotoscan::bundle
+
+namespace rotoscan::bundle {
+namespace {
+
+namespace fs = std::filesystem;
+using rotoscan::testing::ScratchDir;
+
+FrameRecord Record(int step, LaserState laser) {
+  FrameRecord r;
+  r.step = step;
+  r.laser = laser;
+  r.trigger_seq = static_cast<uint32_t>(4 * step + static_cast<int>(laser));
+  return r;
+}
+
+TEST(BundleResumeTest, InterruptedWriterKeepsItsFramesAndResumes) {
+  ScratchDir scratch;
+  const fs::path dir = scratch / "scan";
+  const fs::path partial = BundleWriter::PartialDirectory(dir);
+  {
+    auto writer = BundleWriter::Create(dir, SmallHeader());
+    ASSERT_TRUE(writer.ok());
+    ASSERT_TRUE((*writer)->AddFrame(Record(0, LaserState::kLeft), TestImage(1)).ok());
+    ASSERT_TRUE((*writer)->AddFrame(Record(0, LaserState::kRight), TestImage(2)).ok());
+    // A second writer of the same bundle while this one runs is refused (lock).
+    auto rival = BundleWriter::Create(dir, SmallHeader(), {false, true});
+    EXPECT_EQ(rival.status().code(), StatusCode::kFailedPrecondition);
+    EXPECT_NE(rival.status().message().find("another process"), std::string::npos);
+  }  // destroyed without Finish(): an interruption
+  ASSERT_TRUE(fs::is_directory(partial));
+  EXPECT_FALSE(fs::exists(dir));
+  // Without resume (or overwrite) the interrupted bundle is not touched.
+  auto plain = BundleWriter::Create(dir, SmallHeader());
+  EXPECT_EQ(plain.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(plain.status().message().find("interrupted"), std::string::npos);
+  // Another header cannot resume it.
+  BundleHeader other = SmallHeader();
+  other.camera.laser_exposure_us = 500;
+  EXPECT_EQ(BundleWriter::Create(dir, other, {false, true}).status().code(), StatusCode::kFailedPrecondition);
+
+  auto writer = BundleWriter::Create(dir, SmallHeader(), {false, true});
+  ASSERT_TRUE(writer.ok()) << writer.status().ToString();
+  EXPECT_EQ((*writer)->resumed_frame_count(), 2u);
+  EXPECT_TRUE((*writer)->HasFrame("frames/s0000_left.png"));
+  EXPECT_FALSE((*writer)->HasFrame("frames/s0000_off.png"));
+  // A resumed frame may be written again (it replaces the old one); a new one only once.
+  ASSERT_TRUE((*writer)->AddFrame(Record(0, LaserState::kRight), TestImage(5)).ok());
+  ASSERT_TRUE((*writer)->AddFrame(Record(0, LaserState::kOff), TestImage(3)).ok());
+  EXPECT_EQ((*writer)->AddFrame(Record(0, LaserState::kOff), TestImage(3)).code(),
+            StatusCode::kInvalidArgument);
+  ASSERT_TRUE((*writer)->Finish().ok());
+  EXPECT_FALSE(fs::exists(partial));
+  auto bundle = ReadBundle(dir);
+  ASSERT_TRUE(bundle.ok()) << bundle.status().ToString();
+  ASSERT_EQ(bundle->frames.size(), 3u);
+  EXPECT_EQ(cv::norm(*ReadFrame(*bundle, 0), TestImage(1), cv::NORM_INF), 0.0);  // kept from before
+  EXPECT_EQ(cv::norm(*ReadFrame(*bundle, 1), TestImage(5), cv::NORM_INF), 0.0);  // replaced
+  for (const char* bookkeeping : {"journal.jsonl", "header.json", ".lock"}) {
+    EXPECT_FALSE(fs::exists(dir / bookkeeping)) << bookkeeping;
+  }
+}
+
+TEST(BundleResumeTest, TornJournalLineAndLostFramesAreWrittenAgain) {
+  ScratchDir scratch;
+  const fs::path dir = scratch / "scan";
+  const fs::path partial = BundleWriter::PartialDirectory(dir);
+  {
+    auto writer = BundleWriter::Create(dir, SmallHeader());
+    ASSERT_TRUE(writer.ok());
+    for (LaserState l : {LaserState::kLeft, LaserState::kRight, LaserState::kOff}) {
+      ASSERT_TRUE((*writer)->AddFrame(Record(0, l), TestImage(1)).ok());
+    }
+  }
+  // A crash in the middle of a journal line, and a frame file lost after its record.
+  {
+    std::ofstream journal(partial / "journal.jsonl", std::ios::app);
+    journal << R"({"file": "frames/s0000_natural.png", "st)";
+  }
+  fs::remove(partial / "frames" / "s0000_right.png");
+  auto writer = BundleWriter::Create(dir, SmallHeader(), {false, true});
+  ASSERT_TRUE(writer.ok()) << writer.status().ToString();
+  EXPECT_TRUE((*writer)->HasFrame("frames/s0000_left.png"));
+  EXPECT_FALSE((*writer)->HasFrame("frames/s0000_right.png"));
+  EXPECT_FALSE((*writer)->HasFrame("frames/s0000_natural.png"));
+  EXPECT_EQ((*writer)->resumed_frame_count(), 2u);
+  ASSERT_TRUE((*writer)->AddFrame(Record(0, LaserState::kNatural), TestImage(4)).ok());
+  writer->reset();
+  // Interrupted again: the journal continued cleanly after the torn line.
+  auto again = BundleWriter::Create(dir, SmallHeader(), {false, true});
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  EXPECT_EQ((*again)->resumed_frame_count(), 3u);
+  again->reset();
+  // A journal damaged in the middle is reported, not guessed at.
+  {
+    std::ofstream journal(partial / "journal.jsonl", std::ios::trunc);
+    journal << "{not json\n" << R"({"file": "frames/s0000_left.png"})" << "\n";
+  }
+  auto damaged = BundleWriter::Create(dir, SmallHeader(), {false, true});
+  EXPECT_EQ(damaged.status().code(), StatusCode::kCorruptData);
+  // overwrite starts again.
+  auto fresh = BundleWriter::Create(dir, SmallHeader(), {true, false});
+  ASSERT_TRUE(fresh.ok()) << fresh.status().ToString();
+  EXPECT_EQ((*fresh)->resumed_frame_count(), 0u);
+  EXPECT_FALSE(fs::exists(partial / "frames" / "s0000_left.png"));
+}
+
+TEST(BundleResumeTest, WriterWithoutFramesLeavesNothing) {
+  ScratchDir scratch;
+  { ASSERT_TRUE(BundleWriter::Create(scratch / "empty", SmallHeader()).ok()); }
+  EXPECT_FALSE(fs::exists(BundleWriter::PartialDirectory(scratch / "empty")));
+  EXPECT_FALSE(fs::exists(scratch / "empty"));
 }
 
 }  // namespace

@@ -1,4 +1,6 @@
 // `rotoscan calibrate camera` and `rotoscan calibrate BUNDLE...` through the CLI's Main, as a user runs them.
+#include <cstdio>
+#include <cstdlib>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -67,6 +69,36 @@ TEST(CalibrateCommandTest, RigNeedsReadableCalibrationBundles) {
   r = Call({"calibrate", (dir / "missing").string(), "--out", (dir / "calib.yaml").string()});
   EXPECT_EQ(r.code, kExitFailure);
   EXPECT_FALSE(std::filesystem::exists(dir / "calib.yaml"));
+}
+
+// The paper's calibration object end to end on the virtual scanner: two rendered placements
+// (data/scenes/calibration-object*.json), `rotoscan calibrate` on both, the result against truth/rig.yaml.
+// Opt-in (rendering and detection take a minute): ROTOSCAN_CALIB_RENDERED=1.
+TEST(CalibrateCommandTest, CalibrationObjectBundlesAgainstTruth) {
+  if (std::getenv("ROTOSCAN_CALIB_RENDERED") == nullptr) GTEST_SKIP() << "set ROTOSCAN_CALIB_RENDERED=1";
+  ScratchDir dir;
+  std::vector<std::string> calibrate = {"calibrate"};
+  for (const char* scene : {"calibration-object.json", "calibration-object-2.json"}) {
+    const std::string out = (dir / scene).string() + ".bundle";
+    const CliRun r = Call({"simulate", std::string(ROTOSCAN_SOURCE_DIR) + "/data/scenes/" + scene, "--kind",
+                           "calib-object", "--steps", "9", "--out", out});
+    ASSERT_EQ(r.code, kExitOk) << r.err;
+    calibrate.push_back(out);
+  }
+  calibrate.insert(calibrate.end(), {"--out", (dir / "calib.yaml").string()});
+  const CliRun r = Call(calibrate);
+  std::printf("%s%s", r.out.c_str(), r.err.c_str());
+  ASSERT_TRUE(std::filesystem::exists(dir / "calib.yaml")) << r.err;
+  EXPECT_THAT(r.out, HasSubstr("2 placements"));
+  cv::FileStorage fs((dir / "calib.yaml").string(), cv::FileStorage::READ);
+  cv::Mat k;
+  fs["K"] >> k;
+  cv::FileStorage truth((dir / "calibration-object-2.json.bundle" / "truth" / "rig.yaml").string(),
+                        cv::FileStorage::READ);
+  cv::Mat k_true;
+  truth["K"] >> k_true;
+  EXPECT_NEAR(k.at<double>(0, 0), k_true.at<double>(0, 0), 0.001 * k_true.at<double>(0, 0));
+  EXPECT_LT(static_cast<double>(fs["rms_px"]), 0.1);
 }
 
 }  // namespace

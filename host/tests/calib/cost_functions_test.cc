@@ -78,6 +78,20 @@ TEST(CostFunctionsTest, LaserOnTargetDerivatives) {
       {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale, normal, offset}, 1e-6);
 }
 
+// The same on a target plane that does not pass through the target origin (a face of the paper's object).
+TEST(CostFunctionsTest, LaserOnObjectFaceDerivatives) {
+  const Eigen::Vector2d pixel(650.0, 500.0);
+  const Eigen::Vector4d face(0.28, 0.0, 0.96, -12.0);  // tilted, 12 mm from the target origin
+  const std::vector<double> normal = {0.9, 0.05, 0.4};
+  const std::vector<double> offset = {-80.0};
+  std::unique_ptr<ceres::CostFunction> automatic(LaserOnTargetCost::Create(pixel, -0.2, 0.05, face));
+  ceres::NumericDiffCostFunction<LaserOnTargetCost, ceres::RIDDERS, 1, 4, 5, 6, 3, 3, 1, 3, 1> numeric(
+      new LaserOnTargetCost(pixel, -0.2, 0.05, face));
+  ExpectSameDerivatives(
+      *automatic, numeric,
+      {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale, normal, offset}, 1e-6);
+}
+
 TEST(CostFunctionsTest, AxisGaugeDerivatives) {
   std::unique_ptr<ceres::CostFunction> automatic(
       AxisGaugeCost::Create(Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(0, -1, 0.2), 1.0));

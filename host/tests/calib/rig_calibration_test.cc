@@ -351,3 +351,161 @@ TEST(RigCalibrationTest, ThreeStepVersusJointFigures) {
 
 }  // namespace
 }  // namespace rotoscan::calib
+
+namespace rotoscan::calib {
+namespace {
+
+// The paper's calibration object (two orthogonal 60 mm faces with 10 mm squares, 5 x 5 inner corners per
+// face, calib/calibration_object.h) on the synthetic rig of MakeSynthetic, in two placements with the
+// opening towards the camera: fold 20 mm behind the table axis, and fold 50 mm behind and 25 mm aside,
+// turned 30 degrees (on the axis every laser line would fall on the fold, since the laser planes contain
+// the axis; and one placement puts each laser's lines at nearly one place of its plane). The object stands
+// on a 35 mm block; each placement is seen at 2 * steps_each_side + 1 table steps. Each laser's line on
+// each face gives a LaserView on that face's plane.
+Synthetic MakeObjectSynthetic(bool distortion, double noise_px, unsigned seed, int steps_each_side) {
+  Synthetic s = MakeSynthetic(distortion, 0.0, seed, 1);
+  const geometry::Rig& rig = s.truth.rig;
+  s.data.target_views.clear();
+  s.data.laser_views.clear();
+  s.truth.cam_from_target0.clear();
+  const Eigen::Vector3d up = rig.axis_direction_in_cam.normalized();  // table z, camera frame
+  Eigen::Vector3d towards_camera = -rig.axis_point_in_cam;
+  towards_camera = (towards_camera - up.dot(towards_camera) * up).normalized();
+  const Eigen::Vector3d side = towards_camera.cross(up);
+  const struct { double back_mm, aside_mm, turn_deg; } placements[] = {{20, 0, 0}, {50, 25, 30}};
+  for (const auto& placement : placements) {
+    const Eigen::Matrix3d turn = Eigen::AngleAxisd(DegToRad(placement.turn_deg), up).toRotationMatrix();
+    const Eigen::Vector3d t = turn * towards_camera, sd = turn * side;
+    Eigen::Isometry3d cam_from_target = Eigen::Isometry3d::Identity();
+    const double c = std::sqrt(0.5);
+    cam_from_target.linear().col(0) = c * t + c * sd;
+    cam_from_target.linear().col(1) = c * t - c * sd;
+    cam_from_target.linear().col(2) = up;
+    cam_from_target.translation() =
+        rig.axis_point_in_cam - placement.back_mm * towards_camera + placement.aside_mm * side + 35.0 * up;
+    s.truth.cam_from_target0.push_back(cam_from_target);
+  }
+
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, noise_px);
+  auto noisy = [&](const Eigen::Vector2d& p) {
+    const double dx = noise(rng);
+    const double dy = noise(rng);
+    return Eigen::Vector2d(p.x() + dx, p.y() + dy);
+  };
+  const double nominal = s.data.nominal_step_rad;
+  const Eigen::Vector4d faces[2] = {Eigen::Vector4d(0, 1, 0, 0), Eigen::Vector4d(1, 0, 0, 0)};
+  for (int p = 0; p < static_cast<int>(s.truth.cam_from_target0.size()); ++p) {
+    for (int step = -steps_each_side; step <= steps_each_side; ++step) {
+      const Eigen::Isometry3d pose =
+          geometry::RotationAboutAxis(rig.axis_point_in_cam, rig.axis_direction_in_cam,
+                                      step * rig.step_angle_rad) *
+          s.truth.cam_from_target0[p];
+      TargetView view;
+      view.placement = p;
+      view.step = step;
+      view.table_angle_rad = step * nominal;
+      view.name = "object" + std::to_string(p) + "_s" + std::to_string(step);
+      for (int f = 0; f < 2; ++f) {
+        for (int a = 1; a <= 5; ++a) {
+          for (int b = 1; b <= 5; ++b) {
+            const Eigen::Vector3d corner =
+                f == 0 ? Eigen::Vector3d(10.0 * a, 0, 10.0 * b) : Eigen::Vector3d(0, 10.0 * a, 10.0 * b);
+            const Eigen::Vector3d x = pose * corner;
+            const Eigen::Vector2d pixel = rig.camera.Project(x);
+            EXPECT_TRUE(x.z() > 0 && rig.camera.IsInside(pixel, 5.0))
+                << view.name << " " << pixel.transpose();
+            view.corners_in_target.push_back(corner);
+            view.corner_pixels.push_back(noisy(pixel));
+          }
+        }
+      }
+      s.data.target_views.push_back(view);
+      for (int l = 0; l < 2; ++l) {
+        const geometry::Plane& plane = rig.laser_plane[l];
+        const Eigen::Vector3d n = pose.linear().transpose() * plane.normal;  // target frame
+        const double d = plane.offset + plane.normal.dot(pose.translation());
+        for (int f = 0; f < 2; ++f) {
+          LaserView laser_view;
+          laser_view.laser = static_cast<LaserId>(l);
+          laser_view.placement = p;
+          laser_view.step = step;
+          laser_view.table_angle_rad = step * nominal;
+          laser_view.plane_in_target = faces[f];
+          laser_view.name = view.name + (l == 0 ? "_left" : "_right") + (f == 0 ? "_y0" : "_x0");
+          const double n_along = f == 0 ? n.x() : n.y();  // the face's in-plane coordinate u
+          if (std::abs(n_along) < 1e-6) continue;
+          for (double z = 5.0; z <= 55.0; z += 2.0) {
+            const double u = -(d + n.z() * z) / n_along;
+            if (u < 5.0 || u > 55.0) continue;
+            const Eigen::Vector3d x = f == 0 ? Eigen::Vector3d(u, 0, z) : Eigen::Vector3d(0, u, z);
+            laser_view.pixels.push_back(noisy(rig.camera.Project(pose * x)));
+          }
+          if (!laser_view.pixels.empty()) s.data.laser_views.push_back(laser_view);
+        }
+      }
+    }
+  }
+  return s;
+}
+
+TEST(RigCalibrationTest, ObjectThreeStepIsThePapersDlt) {
+  // No distortion and no noise: the paper's three steps (DLT, planes from the faces, axis) are exact.
+  const Synthetic s = MakeObjectSynthetic(false, 0.0, 11, 3);
+  const auto estimate = CalibrateThreeStep(s.data, {});
+  ASSERT_TRUE(estimate.ok()) << estimate.status().ToString();
+  const geometry::Rig& truth = s.truth.rig;
+  EXPECT_NEAR(estimate->rig.camera.fx, truth.camera.fx, 1e-6 * truth.camera.fx);
+  EXPECT_NEAR(estimate->rig.camera.cy, truth.camera.cy, 1e-3);
+  EXPECT_EQ(estimate->rig.camera.distortion[0], 0.0);
+  for (int l = 0; l < 2; ++l) {
+    EXPECT_LT(NormalErrorDeg(estimate->rig.laser_plane[l], truth.laser_plane[l]), 1e-4) << l;
+    EXPECT_LT(OffsetErrorMm(estimate->rig.laser_plane[l], truth.laser_plane[l]), 1e-3) << l;
+  }
+  EXPECT_LT(AxisDistanceMm(estimate->rig, truth), 1e-3);
+  EXPECT_LT(AxisAngleDeg(estimate->rig, truth), 1e-4);
+}
+
+TEST(RigCalibrationTest, ObjectJointRefinementCorrectsTheDltForDistortion) {
+  // With lens distortion the DLT (a pinhole) is biased; the joint refinement models the lens and recovers
+  // the rig from the same observations.
+  const Synthetic s = MakeObjectSynthetic(true, 0.05, 12, 6);
+  const auto initial = CalibrateThreeStep(s.data, {});
+  ASSERT_TRUE(initial.ok()) << initial.status().ToString();
+  RigCalibrationOptions options;
+  options.compute_covariance = false;
+  const auto refined = RefineRig(s.data, *initial, options);
+  ASSERT_TRUE(refined.ok()) << refined.status().ToString();
+  const geometry::Rig& truth = s.truth.rig;
+  const geometry::Rig& rig = refined->estimate.rig;
+  const RigCalibrationSummary before = Evaluate(s.data, *initial, options);
+  // The pinhole cannot fit the distorted corners; the joint model fits them to the noise (0.05 px). The
+  // object covers the middle of the image only, so k1 and k2 are not well separated: not checked.
+  EXPECT_GT(before.rms_px, 0.15);
+  EXPECT_LE(refined->summary.rms_px, 0.1);
+  EXPECT_NEAR(rig.camera.fx, truth.camera.fx, 0.005 * truth.camera.fx);
+  EXPECT_LT(std::abs(rig.camera.fx - truth.camera.fx), std::abs(initial->rig.camera.fx - truth.camera.fx));
+  for (int l = 0; l < 2; ++l) {
+    EXPECT_LT(NormalErrorDeg(rig.laser_plane[l], truth.laser_plane[l]), 0.1) << l;
+    EXPECT_LT(OffsetErrorMm(rig.laser_plane[l], truth.laser_plane[l]),
+              OffsetErrorMm(initial->rig.laser_plane[l], truth.laser_plane[l]) + 0.01)
+        << l;
+  }
+  EXPECT_LT(AxisAngleDeg(rig, truth), 0.1);
+}
+
+TEST(RigCalibrationTest, ObjectSeenOnOnePlaneIsDegenerate) {
+  // Corners of one face only are coplanar: the DLT has no unique answer, and the error says so.
+  Synthetic s = MakeObjectSynthetic(false, 0.0, 13, 3);
+  for (auto& view : s.data.target_views) {
+    view.corners_in_target.resize(25);
+    view.corner_pixels.resize(25);
+    for (auto& c : view.corners_in_target) c = Eigen::Vector3d(c.x(), c.z(), 1.0);  // off z = 0: no board
+  }
+  const auto estimate = CalibrateThreeStep(s.data, {});
+  ASSERT_FALSE(estimate.ok());
+  EXPECT_THAT(estimate.status().message(), HasSubstr("both of its planes"));
+}
+
+}  // namespace
+}  // namespace rotoscan::calib

@@ -13,31 +13,15 @@
 #include <nlohmann/json.hpp>
 
 #include "rotoscan/device/client.h"
+#include "golden_vectors.h"
 #include "rotoscan_protocol.h"
 
 namespace rotoscan::device {
 namespace {
 
-const std::string kDir = std::string(ROTOSCAN_SOURCE_DIR) + "/protocol/vectors/";
+using protocol_testing::ReadHexVector;
 
-std::vector<uint8_t> ReadHex(const std::string& file) {
-  std::ifstream in(kDir + file);
-  EXPECT_TRUE(in.good()) << kDir + file;
-  std::vector<uint8_t> bytes;
-  std::string line;
-  while (std::getline(in, line)) {
-    std::istringstream words(line.substr(0, line.find('#')));
-    std::string word;
-    while (words >> word) bytes.push_back(static_cast<uint8_t>(std::stoul(word, nullptr, 16)));
-  }
-  return bytes;
-}
-
-nlohmann::json Manifest() {
-  std::ifstream in(kDir + "vectors.json");
-  EXPECT_TRUE(in.good());
-  return nlohmann::json::parse(in);
-}
+nlohmann::json Manifest() { return protocol_testing::ReadVectorManifest(); }
 
 const nlohmann::json& Entry(const nlohmann::json& manifest, const std::string& prefix) {
   for (const auto& e : manifest) {
@@ -52,7 +36,7 @@ class ReplayBoard : public VirtualBoard {
   void Receive(const uint8_t*, size_t) override {
     if (!answered_) {
       answered_ = true;
-      Queue(ReadHex("02_info.hex"));
+      Queue(ReadHexVector("02_info.hex"));
     }
   }
   size_t Transmit(uint8_t* out, size_t max) override {
@@ -78,7 +62,7 @@ TEST(VectorsTest, EveryFrameDecodesAsTheManifestSays) {
       {"EBADMSG", -EBADMSG}, {"EPROTO", -EPROTO}, {"ENOMSG", -ENOMSG}, {"EMSGSIZE", -EMSGSIZE}};
   for (const auto& e : manifest) {
     const std::string file = e["file"];
-    std::vector<uint8_t> wire = ReadHex(file);
+    std::vector<uint8_t> wire = ReadHexVector(file);
     ASSERT_FALSE(wire.empty()) << file;
     EXPECT_EQ(wire.back(), 0) << file << ": a frame ends with its delimiter";
     proto_msg_t msg;
@@ -130,7 +114,7 @@ TEST(VectorsTest, EventsThroughTheClientAndBadFramesDropped) {
   ASSERT_TRUE(client.ok()) << client.status().ToString();
   int bad = 0;
   for (const auto& e : manifest) {
-    board.Queue(ReadHex(e["file"]));
+    board.Queue(ReadHexVector(e["file"]));
     if (!e["error"].is_null()) ++bad;
   }
   std::vector<Event> events;

@@ -1,4 +1,6 @@
+#include <atomic>
 #include <cmath>
+#include <filesystem>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -235,6 +237,52 @@ TEST(RendererTest, LasersShadowDifferentRegions) {
   EXPECT_GT(right_on_box, 10);
 }
 
+// The lamp of the natural image casts shadows: lit from the camera's right, a box darkens the table on
+// its left, down to the ambient light alone, and switching "shadows" off removes exactly that.
+TEST(RendererTest, LampCastsShadowsInTheNaturalImage) {
+  Scene shadowed = SmallScene(R"([{"type": "box", "size_mm": [30, 30, 40]}])");
+  shadowed.light_direction_in_cam = Eigen::Vector3d(1.0, -0.4, 0.0).normalized();  // from the right, above
+  Scene unshadowed = shadowed;
+  unshadowed.lamp_shadows = false;
+  auto with = Renderer::Create(shadowed);
+  auto without = Renderer::Create(unshadowed);
+  ASSERT_TRUE(with.ok() && without.ok());
+  const RenderedStep a = (*with)->RenderStep(0.0, 1), b = (*without)->RenderStep(0.0, 1);
+  cv::Mat lit, dark, ambient;
+  cv::cvtColor(b.frames[3], lit, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(a.frames[3], dark, cv::COLOR_BGR2GRAY);
+  // The ambient term alone at natural exposure: the off frame (ambient, laser exposure) scaled.
+  cv::cvtColor(a.frames[2], ambient, cv::COLOR_BGR2GRAY);
+  const double exposure_ratio = shadowed.sensor.natural_exposure_us / shadowed.sensor.laser_exposure_us;
+  lit.convertTo(lit, CV_64F);
+  dark.convertTo(dark, CV_64F);
+  ambient.convertTo(ambient, CV_64F, exposure_ratio);
+  int in_shadow = 0, brighter = 0, at_ambient = 0;
+  double shadow_x = 0, object_x = 0;
+  int object_pixels = 0;
+  for (int y = 0; y < lit.rows; ++y) {
+    for (int x = 0; x < lit.cols; ++x) {
+      const double l = lit.at<double>(y, x), d = dark.at<double>(y, x);
+      if (d > l + 1.0) ++brighter;  // a shadow never brightens
+      if (l - d > 20.0) {
+        ++in_shadow;
+        shadow_x += x;
+        // 12-bit noise-free frames: within a few DN of the ambient-only level.
+        if (std::abs(d - ambient.at<double>(y, x)) < 0.02 * l + 4.0) ++at_ambient;
+      }
+      if (l > 0.3 * 4095) {  // the bright (light grey) box
+        object_x += x;
+        ++object_pixels;
+      }
+    }
+  }
+  EXPECT_EQ(brighter, 0);
+  ASSERT_GT(in_shadow, lit.total() / 100) << "no cast shadow";
+  EXPECT_GT(at_ambient, in_shadow * 9 / 10);
+  ASSERT_GT(object_pixels, 0);
+  EXPECT_LT(shadow_x / in_shadow, object_x / object_pixels) << "the shadow falls away from the lamp";
+}
+
 TEST(RendererTest, SpotMeshWithTextureLoads) {
   Scene scene = SmallScene(R"([{"type": "mesh", "file": "meshes/spot/spot.obj",
                                 "texture": "meshes/spot/spot_texture.png", "height_mm": 80}])");
@@ -339,6 +387,70 @@ TEST(SimulateTest, CalibrationBundlesHavePoses) {
     EXPECT_EQ(poses->size(), 2u);
   }
   EXPECT_EQ(ParseSimulateKind("board").status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace rotoscan::sim
+
+namespace rotoscan::sim {
+namespace {
+
+namespace fs = std::filesystem;
+using rotoscan::testing::ScratchDir;
+
+// Stops the work after `limit` units, as Ctrl-C would.
+class StopAfter : public Progress {
+ public:
+  explicit StopAfter(uint64_t limit) : limit_(limit) {}
+  void Begin(const std::string&, uint64_t) override {}
+  void Advance(uint64_t n) override { done_ += n; }
+  void End() override {}
+  bool Cancelled() const override { return done_.load() >= limit_; }
+
+ private:
+  uint64_t limit_;
+  std::atomic<uint64_t> done_{0};
+};
+
+TEST(SimulateTest, InterruptedScanResumesToTheSameBundle) {
+  ScratchDir scratch;
+  const Scene scene = SmallScene(R"([{"type": "sphere", "radius_mm": 30, "segments": 32}])", 64, 48, true);
+  SimulateOptions whole;
+  whole.out = scratch / "whole";
+  whole.steps = 6;
+  whole.threads = 2;
+  ASSERT_TRUE(Simulate(scene, whole, nullptr).ok());
+
+  SimulateOptions options = whole;
+  options.out = scratch / "resumed";
+  StopAfter stop(2);
+  const Status interrupted = Simulate(scene, options, &stop);
+  EXPECT_EQ(interrupted.code(), StatusCode::kCancelled);
+  EXPECT_NE(interrupted.message().find("--resume"), std::string::npos) << interrupted.message();
+  EXPECT_FALSE(fs::exists(options.out));  // no half bundle under the final name
+  const fs::path partial = bundle::BundleWriter::PartialDirectory(options.out);
+  ASSERT_TRUE(fs::is_directory(partial));
+  // Not resumed by accident: a plain run refuses, a different scene refuses to resume.
+  EXPECT_EQ(Simulate(scene, options, nullptr).code(), StatusCode::kFailedPrecondition);
+  SimulateOptions resume = options;
+  resume.resume = true;
+  Scene other = scene;
+  other.sensor.laser_exposure_us *= 2;
+  EXPECT_EQ(Simulate(other, resume, nullptr).code(), StatusCode::kFailedPrecondition);
+  // Resume: only the missing steps are rendered (counted by a progress that never stops).
+  ASSERT_TRUE(Simulate(scene, resume, nullptr).ok());
+  EXPECT_FALSE(fs::exists(partial));
+  auto a = bundle::ReadBundle(whole.out);
+  auto b = bundle::ReadBundle(options.out);
+  ASSERT_TRUE(a.ok() && b.ok()) << b.status().ToString();
+  ASSERT_EQ(a->frames.size(), b->frames.size());
+  EXPECT_EQ(bundle::BundleJson(a->header, a->frames), bundle::BundleJson(b->header, b->frames));
+  for (std::size_t i = 0; i < a->frames.size(); ++i) {
+    EXPECT_EQ(cv::norm(*bundle::ReadFrame(*a, i), *bundle::ReadFrame(*b, i), cv::NORM_INF), 0.0) << i;
+  }
+  for (const char* bookkeeping : {"journal.jsonl", "header.json", ".lock"}) {
+    EXPECT_FALSE(fs::exists(options.out / bookkeeping)) << bookkeeping;
+  }
 }
 
 }  // namespace

@@ -1,8 +1,13 @@
 #include "rotoscan/bundle/bundle.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <cmath>
 #include <set>
 #include <system_error>
@@ -14,6 +19,7 @@
 
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/file.h"
+#include "rotoscan/core/logging.h"
 #include "rotoscan/geometry/rigid.h"
 
 namespace rotoscan::bundle {
@@ -175,6 +181,17 @@ Status ValidateImage(const CameraInfo& camera, const cv::Mat& image, const std::
   return Status::Ok();
 }
 
+json FrameJson(const FrameRecord& f) {
+  return {{"file", f.file},
+          {"step", f.step},
+          {"table_angle_deg", geometry::RadToDeg(f.table_angle_rad)},
+          {"laser", LaserStateName(f.laser)},
+          {"trigger_seq", f.trigger_seq},
+          {"device_time_us", f.device_time_us},
+          {"exposure_us", f.exposure_us},
+          {"pose", f.pose}};
+}
+
 int LaserOrder(LaserState s) {
   return static_cast<int>(s);
 }
@@ -257,16 +274,7 @@ std::string BundleJson(const BundleHeader& header, const std::vector<FrameRecord
                       {"description", header.target.description}};
   }
   json list = json::array();
-  for (const FrameRecord& f : frames) {
-    list.push_back({{"file", f.file},
-                    {"step", f.step},
-                    {"table_angle_deg", geometry::RadToDeg(f.table_angle_rad)},
-                    {"laser", LaserStateName(f.laser)},
-                    {"trigger_seq", f.trigger_seq},
-                    {"device_time_us", f.device_time_us},
-                    {"exposure_us", f.exposure_us},
-                    {"pose", f.pose}});
-  }
+  for (const FrameRecord& f : frames) list.push_back(FrameJson(f));
   root["frames"] = std::move(list);
   return root.dump(1) + "\n";
 }
@@ -449,6 +457,71 @@ Result<cv::Mat> ReadFrame(const Bundle& bundle, std::size_t index) {
 
 // ---------------------------------------------------------------------------------------------------------
 
+// The partial directory holds, besides frames/ and truth/: header.json (the header the bundle was started
+// with: a resume must not mix settings), journal.jsonl (one frame record per line, appended after the
+// frame's PNG is safely on disk, so a record never names a missing or torn image; a torn last line from a
+// crash is ignored), and .lock (flock: two processes never write the same bundle; the lock dies with its
+// process, so a crashed writer does not block the resume).
+namespace {
+
+constexpr const char* kHeaderFile = "header.json";
+constexpr const char* kJournalFile = "journal.jsonl";
+constexpr const char* kLockFile = ".lock";
+
+// Locks `directory`/.lock; returns the descriptor, or an error when another process holds it.
+Result<int> LockDirectory(const fs::path& directory, const fs::path& final_dir) {
+  const fs::path lock_path = directory / kLockFile;
+  const int fd = ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) return IoError("cannot open " + lock_path.string() + ": " + std::strerror(errno));
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    ::close(fd);
+    return FailedPreconditionError("another process is writing " + final_dir.string() + " (" +
+                                   directory.string() + " is locked)");
+  }
+  return fd;
+}
+
+// The frame records of an interrupted bundle whose files are on disk, validated by the bundle parser.
+Result<std::vector<FrameRecord>> ReadJournal(const fs::path& working, const std::string& header_text) {
+  std::vector<FrameRecord> frames;
+  const fs::path journal_path = working / kJournalFile;
+  std::error_code ec;
+  if (!fs::exists(journal_path, ec)) return frames;
+  ROTOSCAN_ASSIGN_OR_RETURN(std::string text, ReadFile(journal_path, kMaxJsonBytes));
+  json root;
+  try {
+    root = json::parse(header_text);
+  } catch (const json::exception& e) {
+    return CorruptDataError((working / kHeaderFile).string() + ": not valid JSON: " + e.what());
+  }
+  json list = json::array();
+  std::size_t begin = 0;
+  while (begin < text.size()) {
+    std::size_t end = text.find('\n', begin);
+    if (end == std::string::npos) break;  // a torn last line: that frame is written again
+    try {
+      list.push_back(json::parse(text.substr(begin, end - begin)));
+    } catch (const json::exception& e) {
+      return CorruptDataError(journal_path.string() + ": line " + std::to_string(list.size() + 1) +
+                              " is not valid JSON: " + e.what());
+    }
+    begin = end + 1;
+  }
+  root["frames"] = std::move(list);
+  ROTOSCAN_ASSIGN_OR_RETURN(Bundle parsed, ParseBundleJson(root.dump(), journal_path.string()));
+  for (FrameRecord& f : parsed.frames) {
+    if (!fs::is_regular_file(working / f.file, ec)) continue;  // recorded, then lost: write it again
+    // A frame written twice (replaced on an earlier resume) keeps its last record.
+    frames.erase(std::remove_if(frames.begin(), frames.end(),
+                                [&](const FrameRecord& g) { return g.file == f.file; }),
+                 frames.end());
+    frames.push_back(std::move(f));
+  }
+  return frames;
+}
+
+}  // namespace
+
 BundleWriter::BundleWriter(fs::path final_dir, fs::path working, BundleHeader header, Options options)
     : final_(std::move(final_dir)),
       working_(std::move(working)),
@@ -465,19 +538,95 @@ Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& direc
   if (fs::exists(final_dir, ec) && !options.overwrite) {
     return FailedPreconditionError(final_dir.string() + " exists already (overwrite it explicitly)");
   }
-  const fs::path working = final_dir.string() + ".partial-" + std::to_string(::getpid());
-  fs::remove_all(working, ec);
+  const fs::path working = PartialDirectory(final_dir);
+  const std::string header_text = BundleJson(header, {});
+  std::unique_ptr<BundleWriter> writer(new BundleWriter(final_dir, working, header, options));
+  if (fs::is_directory(working, ec)) {
+    ROTOSCAN_ASSIGN_OR_RETURN(writer->lock_fd_, LockDirectory(working, final_dir));
+    if (options.resume) {
+      auto started_with = ReadFile(working / kHeaderFile, kMaxJsonBytes);
+      if (!started_with.ok() || *started_with != header_text) {
+        return FailedPreconditionError("the interrupted bundle in " + working.string() +
+                                       " was started with other settings: it cannot be resumed with these "
+                                       "(start again with overwrite, or use the same settings)");
+      }
+      ROTOSCAN_ASSIGN_OR_RETURN(writer->frames_, ReadJournal(working, header_text));
+      // The journal is rewritten with the records kept, so that a torn last line is not continued.
+      std::string journal;
+      for (const FrameRecord& f : writer->frames_) {
+        writer->resumed_.insert(f.file);
+        journal += FrameJson(f).dump() + "\n";
+      }
+      ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kJournalFile, journal));
+    } else if (options.overwrite) {
+      for (const fs::directory_entry& entry : fs::directory_iterator(working, ec)) {
+        if (entry.path().filename() != kLockFile) fs::remove_all(entry.path(), ec);
+      }
+      writer->started_ = true;
+    } else {
+      return FailedPreconditionError("an interrupted bundle is in " + working.string() +
+                                     ": resume it (--resume), or start again (--overwrite)");
+    }
+  } else {
+    fs::create_directories(working, ec);
+    if (ec) return IoError("cannot create " + working.string() + ": " + ec.message());
+    ROTOSCAN_ASSIGN_OR_RETURN(writer->lock_fd_, LockDirectory(working, final_dir));
+    writer->started_ = true;
+  }
   fs::create_directories(working / "frames", ec);
   if (!ec) fs::create_directories(working / "truth", ec);
   if (ec) return IoError("cannot create " + working.string() + ": " + ec.message());
-  return std::unique_ptr<BundleWriter>(new BundleWriter(final_dir, working, header, options));
+  ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kHeaderFile, header_text));
+  const fs::path journal_path = working / kJournalFile;
+  writer->journal_ = std::fopen(journal_path.c_str(), "ae");
+  if (writer->journal_ == nullptr) {
+    return IoError("cannot open " + journal_path.string() + ": " + std::strerror(errno));
+  }
+  return writer;
+}
+
+fs::path BundleWriter::PartialDirectory(const fs::path& directory) {
+  fs::path final_dir = directory;
+  if (final_dir.filename().empty()) final_dir = final_dir.parent_path();
+  return final_dir.string() + ".partial";
+}
+
+bool BundleWriter::HasFrame(const std::string& file) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return resumed_.count(file) > 0;
+}
+
+std::size_t BundleWriter::resumed_frame_count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return resumed_.size();
+}
+
+std::size_t BundleWriter::frame_count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return frames_.size();
+}
+
+void BundleWriter::Discard() {
+  ROTOSCAN_CHECK(!finished_);
+  std::lock_guard<std::mutex> lock(mutex_);
+  frames_.clear();
+  resumed_.clear();
+  started_ = true;  // the destructor removes the partial directory
 }
 
 BundleWriter::~BundleWriter() {
-  if (!finished_) {
-    std::error_code ec;
-    fs::remove_all(working_, ec);
+  if (journal_ != nullptr) std::fclose(journal_);
+  std::error_code ec;
+  if (!finished_ && lock_fd_ >= 0) {
+    // Frames on disk make it resumable: keep it. Started here and nothing written: nothing to keep.
+    if (frames_.empty() && started_) {
+      fs::remove_all(working_, ec);
+    } else if (!frames_.empty()) {
+      ROTOSCAN_LOG(kInfo) << "the unfinished bundle stays in " << working_.string() << " (" << frames_.size()
+                << " frames): it can be resumed";
+    }
   }
+  if (lock_fd_ >= 0) ::close(lock_fd_);
 }
 
 Status BundleWriter::AddFrame(FrameRecord record, const cv::Mat& image) {
@@ -488,6 +637,12 @@ Status BundleWriter::AddFrame(FrameRecord record, const cv::Mat& image) {
   ROTOSCAN_RETURN_IF_ERROR(ValidateImage(header_.camera, image, record.file));
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    if (resumed_.erase(record.file) > 0) {
+      // Written before an interruption and written again now: the new one replaces it.
+      frames_.erase(std::remove_if(frames_.begin(), frames_.end(),
+                                   [&](const FrameRecord& f) { return f.file == record.file; }),
+                    frames_.end());
+    }
     for (const FrameRecord& f : frames_) {
       if (f.file == record.file) return InvalidArgumentError("frame " + record.file + " added twice");
     }
@@ -505,6 +660,14 @@ Status BundleWriter::AddFrame(FrameRecord record, const cv::Mat& image) {
   }
   Status s = encoded ? WriteFileAtomically(path, std::string(png.begin(), png.end()))
                      : IoError("cannot encode " + record.file + " as PNG");
+  if (s.ok()) {
+    // The record goes to the journal only once its image is complete on disk.
+    std::lock_guard<std::mutex> lock(mutex_);
+    const std::string line = FrameJson(record).dump() + "\n";
+    if (std::fwrite(line.data(), 1, line.size(), journal_) != line.size() || std::fflush(journal_) != 0) {
+      s = IoError("cannot append to " + (working_ / kJournalFile).string() + ": " + std::strerror(errno));
+    }
+  }
   if (!s.ok()) {
     std::lock_guard<std::mutex> lock(mutex_);
     frames_.erase(std::remove_if(frames_.begin(), frames_.end(),
@@ -534,6 +697,13 @@ Status BundleWriter::Finish() {
   if (fs::exists(final_, ec)) {
     if (!options_.overwrite) return FailedPreconditionError(final_.string() + " appeared while writing");
   }
+  // The bookkeeping of the partial directory is not part of the bundle. The lock is held until the
+  // rename (the descriptor stays open; only the name goes).
+  std::fclose(journal_);
+  journal_ = nullptr;
+  fs::remove(working_ / kJournalFile, ec);
+  fs::remove(working_ / kHeaderFile, ec);
+  fs::remove(working_ / kLockFile, ec);
   Status s = WriteAtomically(final_, [&](const fs::path& temporary) -> Status {
     std::error_code rename_error;
     fs::rename(working_, temporary, rename_error);

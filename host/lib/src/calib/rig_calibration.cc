@@ -22,6 +22,7 @@
 #include "rotoscan/calib/plane_fit.h"
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/file.h"
+#include "rotoscan/geometry/dlt.h"
 #include "rotoscan/geometry/rigid.h"
 
 namespace rotoscan::calib {
@@ -57,11 +58,12 @@ int PlacementCount(const CalibrationData& data) {
   return count;
 }
 
-// Laser pixels of `view` as 3D points on the target plane (camera frame) under `estimate`.
+// Laser pixels of `view` as 3D points on its target plane (camera frame) under `estimate`.
 std::vector<Eigen::Vector3d> LaserPointsInCam(const LaserView& view, const RigEstimate& estimate) {
   const Eigen::Isometry3d cam_from_target = CamFromTargetAt(estimate, view.placement, view.table_angle_rad);
-  const Eigen::Vector3d m = cam_from_target.linear().col(2);
-  const Eigen::Vector3d o = cam_from_target.translation();
+  const Eigen::Vector3d n_in_target = view.plane_in_target.head<3>();
+  const Eigen::Vector3d m = cam_from_target.linear() * n_in_target;
+  const Eigen::Vector3d o = cam_from_target * (-view.plane_in_target(3) * n_in_target);
   std::vector<Eigen::Vector3d> points;
   points.reserve(view.pixels.size());
   for (const auto& pixel : view.pixels) {
@@ -96,9 +98,6 @@ Status CheckData(const CalibrationData& data, const RigCalibrationOptions& optio
       return InvalidArgumentError("view " + v.name + ": only " + std::to_string(v.corners_in_target.size()) +
                                   " target corners: need >= 6");
     }
-    for (const auto& c : v.corners_in_target) {
-      if (c.z() != 0.0) return InvalidArgumentError("view " + v.name + ": target corners must lie on z = 0");
-    }
     steps[v.placement].insert(v.step);
   }
   int best = 0;
@@ -118,6 +117,9 @@ Status CheckData(const CalibrationData& data, const RigCalibrationOptions& optio
       return InvalidArgumentError("laser view " + v.name + ": placement " + std::to_string(v.placement) +
                                   " has no target view");
     }
+    if (std::abs(v.plane_in_target.head<3>().norm() - 1.0) > 1e-6) {
+      return InvalidArgumentError("laser view " + v.name + ": the target plane's normal must be unit");
+    }
     points[static_cast<int>(v.laser)] += static_cast<int>(v.pixels.size());
   }
   for (int l = 0; l < 2; ++l) {
@@ -129,6 +131,56 @@ Status CheckData(const CalibrationData& data, const RigCalibrationOptions& optio
     }
   }
   return Status::Ok();
+}
+
+bool OnBoardPlane(const TargetView& view) {
+  return std::all_of(view.corners_in_target.begin(), view.corners_in_target.end(),
+                     [](const Eigen::Vector3d& c) { return c.z() == 0.0; });
+}
+
+double Median(std::vector<double> values) {
+  ROTOSCAN_CHECK(!values.empty());
+  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+  return values[values.size() / 2];
+}
+
+// The paper's step 1 (eq. 8-10): the 3x4 matrix of every view of a non-planar target by DLT with Hartley
+// normalisation, decomposed into K [R | t]; the camera is the median K over those views, without distortion.
+Result<geometry::CameraModel> CameraFromDlt(const CalibrationData& data) {
+  std::vector<double> fx, fy, cx, cy;
+  Status last = Status::Ok();
+  for (const TargetView& view : data.target_views) {
+    if (OnBoardPlane(view)) continue;
+    Result<geometry::DltEstimate> dlt =
+        geometry::EstimateProjectionDlt(view.corners_in_target, view.corner_pixels);
+    if (!dlt.ok()) {
+      last = dlt.status().WithContext("view " + view.name);
+      continue;
+    }
+    Result<geometry::ProjectionDecomposition> krt = geometry::DecomposeProjection(dlt->projection);
+    if (!krt.ok()) {
+      last = krt.status().WithContext("view " + view.name);
+      continue;
+    }
+    fx.push_back(krt->K(0, 0));
+    fy.push_back(krt->K(1, 1));
+    cx.push_back(krt->K(0, 2));
+    cy.push_back(krt->K(1, 2));
+  }
+  if (fx.empty()) {
+    return InvalidArgumentError(
+        "no view of the calibration object gives a projection matrix (" + last.message() +
+        "): capture the object with both of its planes and their whole grids in view");
+  }
+  geometry::CameraModel c;
+  c.width = data.image_width;
+  c.height = data.image_height;
+  c.fx = Median(fx);
+  c.fy = Median(fy);
+  c.cx = Median(cx);
+  c.cy = Median(cy);
+  ROTOSCAN_RETURN_IF_ERROR(c.Validate().WithContext("camera from the calibration object (DLT)"));
+  return c;
 }
 
 Eigen::Quaterniond AverageRotation(const std::vector<Eigen::Quaterniond>& rotations) {
@@ -172,14 +224,18 @@ Result<RigEstimate> CalibrateThreeStep(const CalibrationData& data, const RigCal
     const TargetView& view = data.target_views[v];
     for (std::size_t i = 0; i < view.corners_in_target.size(); ++i) {
       object_points[v].emplace_back(static_cast<float>(view.corners_in_target[i].x()),
-                                    static_cast<float>(view.corners_in_target[i].y()), 0.0f);
+                                    static_cast<float>(view.corners_in_target[i].y()),
+                                    static_cast<float>(view.corners_in_target[i].z()));
       image_points[v].emplace_back(static_cast<float>(view.corner_pixels[i].x()),
                                    static_cast<float>(view.corner_pixels[i].y()));
     }
   }
+  const bool all_boards = std::all_of(data.target_views.begin(), data.target_views.end(), OnBoardPlane);
   if (camera.has_value()) {
     ROTOSCAN_RETURN_IF_ERROR(camera->Validate());
     estimate.rig.camera = *camera;
+  } else if (!all_boards) {
+    ROTOSCAN_ASSIGN_OR_RETURN(estimate.rig.camera, CameraFromDlt(data));
   } else {
     // Only the initial value: an evenly spread subset of at most 20 views keeps OpenCV fast.
     std::vector<std::vector<cv::Point3f>> subset_object;
@@ -460,10 +516,11 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
   for (const auto& view : data.laser_views) {
     const int l = static_cast<int>(view.laser);
     for (const auto& pixel : view.pixels) {
-      problem.AddResidualBlock(
-          internal::LaserOnTargetCost::Create(pixel, view.table_angle_rad, options.laser_sigma_mm), &loss,
-          intrinsics.data(), distortion.data(), poses[view.placement].data(), axis_direction.data(),
-          axis_point.data(), &angle_scale, normals[l].data(), &offsets[l]);
+      problem.AddResidualBlock(internal::LaserOnTargetCost::Create(
+                                   pixel, view.table_angle_rad, options.laser_sigma_mm, view.plane_in_target),
+                               &loss, intrinsics.data(), distortion.data(), poses[view.placement].data(),
+                               axis_direction.data(), axis_point.data(), &angle_scale, normals[l].data(),
+                               &offsets[l]);
     }
   }
   problem.AddResidualBlock(internal::AxisGaugeCost::Create(axis_point, axis_direction, 1.0), nullptr,

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <csignal>
 #include <cstdlib>
 #include <cstring>
 
@@ -88,5 +89,27 @@ void ProgressBar::Draw(bool final_line) {
   std::fprintf(stream_, "\r%s\x1b[K%s", FormatLine(elapsed).c_str(), final_line ? "\n" : "");
   std::fflush(stream_);
 }
+
+namespace {
+volatile std::sig_atomic_t interrupt_requested = 0;
+
+extern "C" void OnInterrupt(int signal_number) {
+  interrupt_requested = 1;
+  static const char kMessage[] = "\nrotoscan: interrupted, stopping cleanly (again to quit at once)\n";
+  const ssize_t ignored = ::write(STDERR_FILENO, kMessage, sizeof(kMessage) - 1);
+  (void)ignored;
+  std::signal(signal_number, SIG_DFL);  // a second signal terminates
+}
+}  // namespace
+
+void InstallInterruptHandler() {
+  std::signal(SIGINT, OnInterrupt);
+  std::signal(SIGTERM, OnInterrupt);
+}
+bool InterruptRequested() { return interrupt_requested != 0; }
+void RequestInterrupt() { interrupt_requested = 1; }
+void ClearInterrupt() { interrupt_requested = 0; }
+
+bool ProgressBar::Cancelled() const { return InterruptRequested(); }
 
 }  // namespace rotoscan

@@ -6,8 +6,10 @@
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rotoscan/bundle/truth.h"
+#include "rotoscan/calib/charuco.h"
 #include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rigid.h"
 
@@ -55,6 +57,41 @@ double FilteredSquareWave(double x, double w, double s) {
 float Checker(double x, double y, double s, double wx = 0.0, double wy = 0.0) {
   const double c = -FilteredSquareWave(x, wx, s) * FilteredSquareWave(y, wy, s);
   return static_cast<float>(0.5 * (kWhite + kBlack) + 0.5 * (kWhite - kBlack) * c);
+}
+
+// The summed-area table `sum` ((H + 1) x (W + 1)) at a point (x, y) in texel units, clamped to the image:
+// bilinear between the texel corners (exact for a piecewise-constant image).
+double SumAt(const cv::Mat& sum, double x, double y) {
+  const int w = sum.cols - 1, h = sum.rows - 1;
+  x = std::clamp(x, 0.0, static_cast<double>(w));
+  y = std::clamp(y, 0.0, static_cast<double>(h));
+  const int x0 = std::min(static_cast<int>(x), w - 1), y0 = std::min(static_cast<int>(y), h - 1);
+  const double fx = x - x0, fy = y - y0;
+  const double* r0 = sum.ptr<double>(y0);
+  const double* r1 = sum.ptr<double>(y0 + 1);
+  return (1 - fy) * ((1 - fx) * r0[x0] + fx * r0[x0 + 1]) + fy * ((1 - fx) * r1[x0] + fx * r1[x0 + 1]);
+}
+
+// Mean of the image (0..255; white = 255 outside it) over [x - wx, x + wx] x [y - wy, y + wy] (texel units),
+// from its summed-area table; a point sample when the box is empty.
+double BoxFilteredImage(const cv::Mat& sum, double x, double y, double wx, double wy) {
+  const int w = sum.cols - 1, h = sum.rows - 1;
+  constexpr double kMin = 1e-6;
+  if (!(wx < 1e9) || !(wy < 1e9)) wx = wy = 0.0;  // a grazing ray's footprint (inf, NaN): point sample
+  if (wx < kMin && wy < kMin) {
+    if (x < 0 || y < 0 || x >= w || y >= h) return 255.0;
+    const int u = static_cast<int>(x), v = static_cast<int>(y);
+    return sum.at<double>(v + 1, u + 1) - sum.at<double>(v, u + 1) - sum.at<double>(v + 1, u) +
+           sum.at<double>(v, u);
+  }
+  wx = std::max(wx, kMin);
+  wy = std::max(wy, kMin);
+  const double x0 = x - wx, x1 = x + wx, y0 = y - wy, y1 = y + wy;
+  const double inside = SumAt(sum, x1, y1) - SumAt(sum, x0, y1) - SumAt(sum, x1, y0) + SumAt(sum, x0, y0);
+  const double inside_area = std::max(0.0, std::min(x1, static_cast<double>(w)) - std::max(x0, 0.0)) *
+                             std::max(0.0, std::min(y1, static_cast<double>(h)) - std::max(y0, 0.0));
+  const double area = (x1 - x0) * (y1 - y0);
+  return (inside + 255.0 * (area - inside_area)) / area;
 }
 
 float Bilinear(const cv::Mat& tex, float x, float y, int channel) {
@@ -265,6 +302,16 @@ Eigen::Vector3f Mesh::Albedo(unsigned face, float u, float v, const Eigen::Vecto
       const double w_z = 0.5 * (std::abs(dx.z()) + std::abs(dy.z()));
       return Eigen::Vector3f::Constant(Checker(in_plane, p.z(), square_mm, w_in, w_z));
     }
+    case Pattern::kCharuco: {
+      const Eigen::Vector3d p = object_from_table * point_in_table;
+      const Eigen::Vector3d dx = object_from_table.linear() * footprint_x;
+      const Eigen::Vector3d dy = object_from_table.linear() * footprint_y;
+      const double k = pattern_texels_per_mm;
+      const double grey = BoxFilteredImage(pattern_sum, (p.x() + square_mm) * k, (p.y() + square_mm) * k,
+                                           0.5 * k * (std::abs(dx.x()) + std::abs(dy.x())),
+                                           0.5 * k * (std::abs(dx.y()) + std::abs(dy.y())));
+      return Eigen::Vector3f::Constant(static_cast<float>(kBlack + (kWhite - kBlack) * grey / 255.0));
+    }
     case Pattern::kNone: break;
   }
   const float w = 1.0f - u - v;
@@ -347,6 +394,17 @@ Result<Mesh> MakeObject(const ObjectSpec& spec, const Scene& scene) {
       m.cols = spec.cols;
       m.rows = spec.rows;
       m.square_mm = s;
+      if (spec.marker_mm > 0) {
+        // ChArUco: the board image drawn by OpenCV at a resolution where its marker cells fall on whole
+        // texels (then the texture is the board's design exactly), box-filtered through its summed-area
+        // table.
+        calib::CharucoBoard board{spec.cols + 1, spec.rows + 1, s, spec.marker_mm, spec.dictionary};
+        ROTOSCAN_RETURN_IF_ERROR(board.Check().WithContext("charuco object"));
+        const int texels_per_square = board.CrispPixelsPerSquare(8, 400);
+        cv::integral(board.Draw(texels_per_square), m.pattern_sum, CV_64F);
+        m.pattern_texels_per_mm = texels_per_square / s;
+        m.pattern = Pattern::kCharuco;
+      }
       // Standing upright on the table facing the camera: target x along table x, y down, z away.
       Eigen::Matrix3d r;
       r << 1, 0, 0, 0, 0, 1, 0, -1, 0;

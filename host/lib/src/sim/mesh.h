@@ -13,7 +13,7 @@
 
 namespace rotoscan::sim::internal {
 
-enum class Pattern { kNone, kChecker, kCalibrationObject };
+enum class Pattern { kNone, kChecker, kCalibrationObject, kCharuco };
 
 struct Mesh {
   std::vector<Eigen::Vector3f> vertices;  // table frame, mm
@@ -25,6 +25,12 @@ struct Mesh {
   Pattern pattern = Pattern::kNone;
   int cols = 0, rows = 0;
   double square_mm = 0.0;
+  // kCharuco: the summed-area table (CV_64FC1, (H + 1) x (W + 1), cv::integral) of the board image
+  // (calib::CharucoBoard::Draw, 0..255; texel (u, v) covers [u, u + 1) x [v, v + 1) / texels_per_mm from
+  // the board's outer corner at (-square, -square) of the target frame). A box filter over any rectangle
+  // is then exact: the integral of a piecewise-constant image is bilinear inside each texel.
+  cv::Mat pattern_sum;
+  double pattern_texels_per_mm = 0.0;
   Eigen::Isometry3d table_from_object = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d object_from_table = Eigen::Isometry3d::Identity();
 

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
+#include <mutex>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -34,7 +36,8 @@ struct Renderer::Impl {
   RTCScene rtc_scene = nullptr;
   std::vector<Mesh> meshes;  // 0: table top
   // Camera ray (z = 1) through pixel centres on a grid with a one-pixel border: (width + 2) x (height + 2).
-  std::vector<Eigen::Vector3f> rays;
+  std::shared_ptr<const std::vector<Eigen::Vector3f>> ray_grid;  // shared by renderers of one camera
+  const std::vector<Eigen::Vector3f>& rays() const { return *ray_grid; }
   int grid_width = 0;
 
   ~Impl() {
@@ -45,6 +48,7 @@ struct Renderer::Impl {
   // Ray direction (camera frame, z = 1) at continuous pixel position (x, y), bilinear between centres.
   Eigen::Vector3f RayAt(float x, float y) const {
     const float gx = x + 1, gy = y + 1;
+    const std::vector<Eigen::Vector3f>& rays = *ray_grid;
     const int grid_height = static_cast<int>(rays.size()) / grid_width;
     const int x0 = std::clamp(static_cast<int>(std::floor(gx)), 0, grid_width - 2);
     const int y0 = std::clamp(static_cast<int>(std::floor(gy)), 0, grid_height - 2);
@@ -80,6 +84,35 @@ struct Renderer::Impl {
     return ray.tfar < 0.0f;
   }
 };
+
+namespace {
+
+// Camera rays (z = 1) through the pixel centres with a one-pixel border, (width + 2) x (height + 2). The
+// inverse lens model is iterative and this grid takes about a second at 1288x964, so renderers of the
+// same camera (one per board pose in a calibration bundle) share it.
+std::shared_ptr<const std::vector<Eigen::Vector3f>> RayGrid(const geometry::CameraModel& camera) {
+  static std::mutex mutex;
+  static std::weak_ptr<const std::vector<Eigen::Vector3f>> last;
+  static geometry::CameraModel last_camera;
+  std::lock_guard<std::mutex> lock(mutex);
+  const bool same = camera.width == last_camera.width && camera.height == last_camera.height &&
+                    camera.Intrinsics() == last_camera.Intrinsics() &&
+                    camera.distortion == last_camera.distortion;
+  if (auto cached = last.lock(); cached && same) return cached;
+  const int grid_width = camera.width + 2;
+  auto grid = std::make_shared<std::vector<Eigen::Vector3f>>(static_cast<std::size_t>(grid_width) *
+                                                             (camera.height + 2));
+  for (int y = -1; y <= camera.height; ++y) {
+    for (int x = -1; x <= camera.width; ++x) {
+      (*grid)[(y + 1) * grid_width + (x + 1)] = camera.PixelToRay(Eigen::Vector2d(x, y)).cast<float>();
+    }
+  }
+  last = grid;
+  last_camera = camera;
+  return grid;
+}
+
+}  // namespace
 
 Renderer::Renderer(const Scene& scene, std::unique_ptr<Impl> impl) : scene_(scene), impl_(std::move(impl)) {}
 Renderer::~Renderer() = default;
@@ -123,13 +156,7 @@ Result<std::unique_ptr<Renderer>> Renderer::Create(const Scene& scene) {
 
   const geometry::CameraModel& camera = scene.rig.camera;
   impl->grid_width = camera.width + 2;
-  impl->rays.resize(static_cast<std::size_t>(camera.width + 2) * (camera.height + 2));
-  for (int y = -1; y <= camera.height; ++y) {
-    for (int x = -1; x <= camera.width; ++x) {
-      impl->rays[(y + 1) * impl->grid_width + (x + 1)] =
-          camera.PixelToRay(Eigen::Vector2d(x, y)).cast<float>();
-    }
-  }
+  impl->ray_grid = RayGrid(camera);
   return std::unique_ptr<Renderer>(new Renderer(scene, std::move(impl)));
 }
 
@@ -170,57 +197,56 @@ bundle::TruthMesh Renderer::ObjectMesh() const {
   return out;
 }
 
-cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
-  ROTOSCAN_CHECK(electrons.type() == CV_32FC3);
-  const SensorModel& s = scene_.sensor;
+namespace {
+
+// The sensor model of scene.h on `electrons` (CV_32FC3, BGR, mean electrons per pixel), which is used as
+// scratch space and left undefined. Every pass is a simple loop over contiguous floats (vectorised) or an
+// OpenCV call; the noise loop needs sqrt without errno, hence -fno-math-errno on this file.
+cv::Mat SensorResponse(const SensorModel& s, cv::Mat& electrons, uint64_t seed, cv::Mat& raw_scratch,
+                       cv::Mat& normal_scratch) {
+  ROTOSCAN_CHECK(electrons.type() == CV_32FC3 && electrons.isContinuous());
   cv::RNG rng(seed);
   const int rows = electrons.rows, cols = electrons.cols;
   cv::Mat raw;  // electrons, 1 or 3 channels
   if (s.bayer) {
     // RGGB: R at (even row, even col), B at (odd, odd); BGR memory order.
-    raw.create(rows, cols, CV_32FC1);
+    raw_scratch.create(rows, cols, CV_32FC1);
+    raw = raw_scratch;
     for (int y = 0; y < rows; ++y) {
       const cv::Vec3f* in = electrons.ptr<cv::Vec3f>(y);
       float* out = raw.ptr<float>(y);
-      for (int x = 0; x < cols; ++x) {
-        const int channel = (y % 2 == 0) ? (x % 2 == 0 ? 2 : 1) : (x % 2 == 0 ? 1 : 0);
-        out[x] = in[x][channel];
+      const int first = (y % 2 == 0) ? 2 : 1, second = (y % 2 == 0) ? 1 : 0;
+      for (int x = 0; x + 1 < cols; x += 2) {
+        out[x] = in[x][first];
+        out[x + 1] = in[x + 1][second];
       }
+      if (cols % 2 == 1) out[cols - 1] = in[cols - 1][first];
     }
   } else {
-    raw = electrons.clone();
+    raw = electrons;
   }
-  cv::Mat flat = raw.reshape(1);
+  cv::Mat flat = raw.reshape(1, 1);  // one row of all samples (both are continuous)
+  const int n = flat.cols;
+  float* e = flat.ptr<float>();
   if (s.noise) {
-    cv::Mat normal(flat.size(), CV_32FC1);
-    rng.fill(normal, cv::RNG::NORMAL, 0.0, 1.0);
+    // Shot noise (Poisson as a Gaussian of variance = mean) plus read noise.
+    normal_scratch.create(1, n, CV_32FC1);
+    rng.fill(normal_scratch, cv::RNG::NORMAL, 0.0, 1.0);
+    const float* g = normal_scratch.ptr<float>();
     const float read2 = static_cast<float>(s.read_noise_e * s.read_noise_e);
-    for (int y = 0; y < flat.rows; ++y) {
-      float* e = flat.ptr<float>(y);
-      const float* n = normal.ptr<float>(y);
-      for (int x = 0; x < flat.cols; ++x) {
-        const float mean = std::max(0.0f, e[x]);
-        e[x] = mean + std::sqrt(mean + read2) * n[x];
-      }
+    for (int i = 0; i < n; ++i) {
+      const float mean = e[i] > 0.0f ? e[i] : 0.0f;
+      e[i] = mean + std::sqrt(mean + read2) * g[i];
     }
   }
+  // Saturation at the full well (and at the top code), gain, rounding, clipping at 0: convertTo rounds
+  // to nearest and saturates, so clipping the electrons at min(full well, top code / gain) first is enough.
   const float k = static_cast<float>(s.DnPerElectron());
-  const float full = static_cast<float>(s.full_well_e), max_dn = static_cast<float>(s.MaxDn());
-  const bool identity_matrix = s.color_matrix == std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const float ceiling = std::min(static_cast<float>(s.full_well_e), static_cast<float>(s.MaxDn()) / k);
+  for (int i = 0; i < n; ++i) e[i] = e[i] < ceiling ? e[i] : ceiling;
   const int depth = s.bit_depth > 8 ? CV_16U : CV_8U;
-  cv::Mat dn(flat.size(), depth);
-  for (int y = 0; y < flat.rows; ++y) {
-    const float* e = flat.ptr<float>(y);
-    for (int x = 0; x < flat.cols; ++x) {
-      const float v = std::clamp(std::round(std::min(e[x], full) * k), 0.0f, max_dn);
-      if (depth == CV_8U) {
-        dn.ptr<uint8_t>(y)[x] = static_cast<uint8_t>(v);
-      } else {
-        dn.ptr<uint16_t>(y)[x] = static_cast<uint16_t>(v);
-      }
-    }
-  }
-  dn = dn.reshape(s.bayer ? 1 : 3);
+  cv::Mat dn;
+  raw.convertTo(dn, depth, k);
   cv::Mat color;
   if (s.bayer) {
     // OpenCV names Bayer patterns by the second row: an RGGB sensor is COLOR_BayerBG2BGR.
@@ -228,6 +254,7 @@ cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
   } else {
     color = dn;
   }
+  const bool identity_matrix = s.color_matrix == std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
   if (identity_matrix) return color;
   // The color matrix acts on RGB; in BGR order it is reversed in both indices.
   cv::Matx33f m;
@@ -237,6 +264,64 @@ cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
   cv::Mat out;
   cv::transform(color, out, m);  // saturating cast to the same depth
   return out;
+}
+
+// Scratch images of one thread, reused from step to step: allocating ~100 MB of fresh pages per step
+// (page faults and zeroing) cost more than the ray casting.
+struct Workspace {
+  cv::Mat ambient, lamp, laser[2], electrons, speckle, raw, normal;
+};
+
+// Multiplies the laser image `line` by a speckle field: white Gaussian noise blurred to the speckle size,
+// scaled to the laser's speckle contrast, mean 1, clipped at 0. Only the band of columns the line covers
+// (plus the blur's reach) gets a field: elsewhere the line is zero and speckle changes nothing, and the
+// band is typically a tenth of the image.
+void ApplySpeckle(const LaserModel& laser, uint64_t seed, cv::Mat& line, cv::Mat& scratch) {
+  int first = line.cols, last = -1;
+  for (int y = 0; y < line.rows; ++y) {
+    const float* l = line.ptr<float>(y);
+    for (int x = 0; x < first; ++x) {
+      if (l[x] != 0.0f) {
+        first = x;
+        break;
+      }
+    }
+    for (int x = line.cols - 1; x > last; --x) {
+      if (l[x] != 0.0f) {
+        last = x;
+        break;
+      }
+    }
+  }
+  if (last < first) return;  // no laser in view
+  // The band is widened to at least 64 columns so that the field's standard deviation is well estimated.
+  const int reach = static_cast<int>(std::ceil(4.0 * laser.speckle_size_px)) + 32;
+  const int x0 = std::max(0, first - reach), x1 = std::min(line.cols, last + 1 + reach);
+  const cv::Rect band(x0, 0, x1 - x0, line.rows);
+  scratch.create(band.size(), CV_32FC1);
+  cv::RNG rng(seed);
+  rng.fill(scratch, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(scratch, scratch, cv::Size(0, 0), laser.speckle_size_px, laser.speckle_size_px,
+                   cv::BORDER_REFLECT);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(scratch, mean, stddev);
+  const float gain = static_cast<float>(laser.speckle_contrast / std::max(1e-12, stddev[0]));
+  for (int y = 0; y < line.rows; ++y) {
+    const float* f = scratch.ptr<float>(y);
+    float* l = line.ptr<float>(y) + x0;
+    for (int x = 0; x < band.width; ++x) {
+      const float factor = f[x] * gain + 1.0f;
+      l[x] *= factor > 0.0f ? factor : 0.0f;
+    }
+  }
+}
+
+}  // namespace
+
+cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
+  ROTOSCAN_CHECK(electrons.type() == CV_32FC3);
+  cv::Mat scratch = electrons.clone(), raw, normal;
+  return SensorResponse(scene_.sensor, scratch, seed, raw, normal);
 }
 
 RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const FrameMask& mask) const {
@@ -249,6 +334,8 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
   const Eigen::Vector3d cam_centre = table_from_cam.translation();
   const Eigen::Vector3d light = (table_from_cam.linear() * sc.light_direction_in_cam).normalized();
   const bool want_laser[2] = {mask[0], mask[1]};
+  const bool lamp_shadows = mask[3] && sc.lamp_shadows;
+  constexpr float kLampDistanceMm = 2000.0f;  // the lamp is far (directional light); shadow rays end there
   Eigen::Vector3d laser_origin[2], laser_normal[2];
   double laser_offset[2];
   for (int k = 0; k < 2; ++k) {
@@ -258,15 +345,21 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
         -laser_normal[k].dot(table_from_cam * (-sc.rig.laser_plane[k].offset * sc.rig.laser_plane[k].normal));
   }
 
-  cv::Mat ambient(height, width, CV_32FC3, cv::Scalar::all(0));  // albedo * ambient, BGR
-  cv::Mat lamp(height, width, CV_32FC3, cv::Scalar::all(0));     // albedo * (ambient + lamp), BGR
-  cv::Mat laser_img[2] = {cv::Mat(height, width, CV_32FC1, cv::Scalar(0)),
-                          cv::Mat(height, width, CV_32FC1, cv::Scalar(0))};
+  thread_local Workspace ws;
+  auto zeroed = [&](cv::Mat& m, int type) -> cv::Mat& {
+    m.create(height, width, type);
+    m.setTo(cv::Scalar::all(0));
+    return m;
+  };
+  cv::Mat& ambient = zeroed(ws.ambient, CV_32FC3);  // albedo * ambient, BGR
+  cv::Mat& lamp = zeroed(ws.lamp, CV_32FC3);        // albedo * (ambient + lamp), BGR
+  cv::Mat laser_img[2] = {zeroed(ws.laser[0], CV_32FC1), zeroed(ws.laser[1], CV_32FC1)};
   const float weight = 1.0f / static_cast<float>(ss * ss);
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
   const Eigen::Vector3f origin = cam_centre.cast<float>();
+  const Eigen::Vector3f light_f = light.cast<float>();
   // Camera rays go to Embree in packets of 8 along a row of sub-samples (coherent, much faster than
   // single rays); each hit is then shaded on its own.
   constexpr int kPacket = 8;
@@ -276,7 +369,7 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
     float* laser_row[2] = {laser_img[0].ptr<float>(y), laser_img[1].ptr<float>(y)};
     auto shade = [&](int x, float px, float py, const Eigen::Vector3f& dir, float t,
                      const Eigen::Vector3d& ng, unsigned geom_id, unsigned prim_id, float hit_u,
-                     float hit_v) {
+                     float hit_v, bool lamp_blocked) {
       const Mesh& mesh = impl_->meshes[geom_id];
       const Eigen::Vector3d p = cam_centre + static_cast<double>(t) * dir.cast<double>();
       Eigen::Vector3d n = ng.normalized();
@@ -292,7 +385,9 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
         footprint_y = cam_centre + along / n.dot(dir_y) * dir_y - p;
       }
       const Eigen::Vector3f albedo = mesh.Albedo(prim_id, hit_u, hit_v, p, footprint_x, footprint_y);
-      const float lit = static_cast<float>(sc.ambient + sc.diffuse * std::max(0.0, n.dot(light)));
+      // The lamp: Lambertian, unless the scene blocks it (cast and self shadows).
+      const double lamp_cos = lamp_blocked ? 0.0 : std::max(0.0, n.dot(light));
+      const float lit = static_cast<float>(sc.ambient + sc.diffuse * lamp_cos);
       for (int c = 0; c < 3; ++c) {
         amb_row[x][2 - c] += weight * albedo[c] * static_cast<float>(sc.ambient);
         lamp_row[x][2 - c] += weight * albedo[c] * lit;
@@ -343,11 +438,40 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
           packet.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
         }
         rtcIntersect8(valid, impl_->rtc_scene, &context, &packet);
+        // Shadow rays towards the lamp, as a packet too (parallel rays: coherent). Only the natural frame
+        // needs them.
+        alignas(32) int shadow_valid[kPacket] = {};
+        alignas(32) RTCRay8 shadow;
+        bool any_shadow_ray = false;
+        for (int l = 0; l < kPacket; ++l) {
+          shadow.tfar[l] = 0.0f;
+          if (!lamp_shadows || valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;
+          Eigen::Vector3f ng(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]);
+          if (ng.dot(dirs[l]) > 0) ng = -ng;
+          if (ng.dot(light_f) <= 0) continue;  // facing away from the lamp: unlit anyway
+          const Eigen::Vector3f p = origin + packet.ray.tfar[l] * dirs[l];
+          shadow.org_x[l] = p.x();
+          shadow.org_y[l] = p.y();
+          shadow.org_z[l] = p.z();
+          shadow.dir_x[l] = light_f.x();
+          shadow.dir_y[l] = light_f.y();
+          shadow.dir_z[l] = light_f.z();
+          shadow.tnear[l] = 1e-2f;
+          shadow.tfar[l] = kLampDistanceMm;
+          shadow.mask[l] = 0xFFFFFFFF;
+          shadow.time[l] = 0.0f;
+          shadow.flags[l] = 0;
+          shadow.id[l] = 0;
+          shadow_valid[l] = -1;
+          any_shadow_ray = true;
+        }
+        if (any_shadow_ray) rtcOccluded8(shadow_valid, impl_->rtc_scene, &context, &shadow);
         for (int l = 0; l < kPacket; ++l) {
           if (valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;  // black background
           shade((first + l) / ss, pxs[l], pys[l], dirs[l], packet.ray.tfar[l],
                 Eigen::Vector3d(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]),
-                packet.hit.geomID[l], packet.hit.primID[l], packet.hit.u[l], packet.hit.v[l]);
+                packet.hit.geomID[l], packet.hit.primID[l], packet.hit.u[l], packet.hit.v[l],
+                shadow_valid[l] != 0 && shadow.tfar[l] < 0.0f);
         }
       }
     }
@@ -355,46 +479,45 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
 
   RenderedStep out;
   const SensorModel& sensor = sc.sensor;
-  const double laser_scale = sensor.laser_exposure_us * sensor.sensitivity_e_per_us;
-  const double natural_scale = sensor.natural_exposure_us * sensor.sensitivity_e_per_us;
-  auto finish = [&](cv::Mat electrons, int frame) {
+  const float laser_scale = static_cast<float>(sensor.laser_exposure_us * sensor.sensitivity_e_per_us);
+  const float natural_scale = static_cast<float>(sensor.natural_exposure_us * sensor.sensitivity_e_per_us);
+  // electrons = scale * (base + line * response), then blur and the sensor. ws.electrons is scratch.
+  auto finish = [&](const cv::Mat& base, float scale, const cv::Mat* line, const float* response, int frame) {
+    cv::Mat& electrons = ws.electrons;
+    electrons.create(height, width, CV_32FC3);
+    if (line == nullptr) {
+      base.convertTo(electrons, CV_32FC3, scale);
+    } else {
+      const float r[3] = {scale * response[0], scale * response[1], scale * response[2]};
+      for (int y = 0; y < height; ++y) {
+        const float* a = base.ptr<float>(y);
+        const float* l = line->ptr<float>(y);
+        float* e = electrons.ptr<float>(y);
+        for (int x = 0; x < width; ++x) {
+          e[3 * x + 0] = scale * a[3 * x + 0] + l[x] * r[0];
+          e[3 * x + 1] = scale * a[3 * x + 1] + l[x] * r[1];
+          e[3 * x + 2] = scale * a[3 * x + 2] + l[x] * r[2];
+        }
+      }
+    }
     if (sensor.blur_sigma_px > 0) {
       cv::GaussianBlur(electrons, electrons, cv::Size(0, 0), sensor.blur_sigma_px, sensor.blur_sigma_px,
                        cv::BORDER_REPLICATE);
     }
-    out.frames[frame] = ApplySensor(electrons, seed ^ (0x51ed2701ULL * (frame + 1)));
+    out.frames[frame] =
+        SensorResponse(sensor, electrons, seed ^ (0x51ed2701ULL * (frame + 1)), ws.raw, ws.normal);
   };
   for (int k = 0; k < 2; ++k) {
     if (!mask[k]) continue;
     const LaserModel& laser = sc.laser[k];
-    cv::Mat line = laser_img[k];
-    if (laser.speckle_contrast > 0) {
-      cv::Mat speckle(height, width, CV_32FC1);
-      cv::RNG rng(seed ^ (0xabcdef12345ULL * (k + 1)));
-      rng.fill(speckle, cv::RNG::NORMAL, 0.0, 1.0);
-      cv::GaussianBlur(speckle, speckle, cv::Size(0, 0), laser.speckle_size_px, laser.speckle_size_px,
-                       cv::BORDER_REFLECT);
-      cv::Scalar mean, stddev;
-      cv::meanStdDev(speckle, mean, stddev);
-      speckle = speckle * (laser.speckle_contrast / std::max(1e-12, stddev[0])) + 1.0;
-      speckle = cv::max(speckle, 0.0);
-      line = line.mul(speckle);
-    }
-    cv::Mat electrons(height, width, CV_32FC3);
-    const float r[3] = {static_cast<float>(laser.response[2]), static_cast<float>(laser.response[1]),
-                        static_cast<float>(laser.response[0])};  // BGR
-    for (int y = 0; y < height; ++y) {
-      const cv::Vec3f* a = ambient.ptr<cv::Vec3f>(y);
-      const float* l = line.ptr<float>(y);
-      cv::Vec3f* e = electrons.ptr<cv::Vec3f>(y);
-      for (int x = 0; x < width; ++x) {
-        for (int c = 0; c < 3; ++c) e[x][c] = static_cast<float>(laser_scale) * (a[x][c] + l[x] * r[c]);
-      }
-    }
-    finish(electrons, k);
+    cv::Mat& line = laser_img[k];
+    if (laser.speckle_contrast > 0) ApplySpeckle(laser, seed ^ (0xabcdef12345ULL * (k + 1)), line, ws.speckle);
+    const float response[3] = {static_cast<float>(laser.response[2]), static_cast<float>(laser.response[1]),
+                               static_cast<float>(laser.response[0])};  // BGR
+    finish(ambient, laser_scale, &line, response, k);
   }
-  if (mask[2]) finish(ambient * laser_scale, 2);
-  if (mask[3]) finish(lamp * natural_scale, 3);
+  if (mask[2]) finish(ambient, laser_scale, nullptr, nullptr, 2);
+  if (mask[3]) finish(lamp, natural_scale, nullptr, nullptr, 3);
   return out;
 }
 

@@ -4,6 +4,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "rotoscan/calib/charuco.h"
 #include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rigid.h"
 
@@ -203,8 +204,8 @@ Status ParseObject(const json& j, std::size_t index, const fs::path& base_dir, O
   if (!j.is_object()) return InvalidArgumentError("field '" + path + "' must be an object");
   Reader r(j, path);
   RETURN_IF(r.OnlyKeys({"type", "file", "texture", "up_axis", "height_mm", "scale", "radius_mm", "segments",
-                        "size_mm", "distance_mm", "angle_deg", "cols", "rows", "square_mm", "position_mm",
-                        "rotation_deg", "color"}));
+                        "size_mm", "distance_mm", "angle_deg", "cols", "rows", "square_mm", "marker_mm",
+                        "dictionary", "position_mm", "rotation_deg", "color"}));
   std::string type;
   if (r.Get("type") == nullptr) return InvalidArgumentError("missing field '" + path + ".type'");
   RETURN_IF(r.String("type", &type));
@@ -214,7 +215,9 @@ Status ParseObject(const json& j, std::size_t index, const fs::path& base_dir, O
                                                       {"box", ObjectType::kBox},
                                                       {"plane", ObjectType::kPlane},
                                                       {"checkerboard", ObjectType::kCheckerboard},
+                                                      {"charuco", ObjectType::kCheckerboard},
                                                       {"calibration_object", ObjectType::kCalibrationObject}};
+  const bool charuco = type == "charuco";
   bool known = false;
   for (const auto& [n, t] : types) {
     if (type == n) {
@@ -225,9 +228,10 @@ Status ParseObject(const json& j, std::size_t index, const fs::path& base_dir, O
   if (!known) {
     return InvalidArgumentError("field '" + path + ".type' = '" + type +
                                 "' is not one of mesh, sphere, cylinder, box, plane, checkerboard, "
-                                "calibration_object");
+                                "charuco, calibration_object");
   }
   if (o->type == ObjectType::kCalibrationObject) o->square_mm = 10.0, o->size_mm = {60, 60, 60};
+  if (charuco) o->cols = 8, o->rows = 6, o->square_mm = 8.0, o->marker_mm = 6.0;  // squares until below
   std::string file, texture;
   RETURN_IF(r.String("file", &file));
   RETURN_IF(r.String("texture", &texture));
@@ -255,6 +259,19 @@ Status ParseObject(const json& j, std::size_t index, const fs::path& base_dir, O
   RETURN_IF(r.Int("cols", 2, 100, &o->cols));
   RETURN_IF(r.Int("rows", 2, 100, &o->rows));
   RETURN_IF(r.Number("square_mm", 0.1, 1e3, &o->square_mm));
+  if (charuco) {
+    RETURN_IF(r.Number("marker_mm", 0.01, 1e3, &o->marker_mm));
+    RETURN_IF(r.String("dictionary", &o->dictionary));
+    Result<calib::CharucoBoard> board = calib::ParseCharucoBoard(
+        std::to_string(o->cols) + "x" + std::to_string(o->rows), o->square_mm, o->marker_mm, o->dictionary);
+    if (!board.ok())
+      return InvalidArgumentError("field '" + path + "' (charuco): " + board.status().message());
+    o->dictionary = board->dictionary;
+    o->cols -= 1;  // squares -> inner corners (the checkerboard's convention)
+    o->rows -= 1;
+  } else if (r.Get("marker_mm") != nullptr || r.Get("dictionary") != nullptr) {
+    return InvalidArgumentError("fields '" + path + ".marker_mm' and '.dictionary' belong to a charuco only");
+  }
   RETURN_IF(r.Vector("position_mm", -1e4, 1e4, &o->position_mm));
   RETURN_IF(r.Vector("rotation_deg", -360.0, 360.0, &o->rotation_deg));
   RETURN_IF(r.Vector("color", 0.0, 1.0, &o->color));
@@ -376,7 +393,8 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
     RETURN_IF(top.Object("light", &present));
     if (present) {
       Reader r(root["light"], "light");
-      RETURN_IF(r.OnlyKeys({"ambient", "diffuse", "direction"}));
+      RETURN_IF(r.OnlyKeys({"ambient", "diffuse", "direction", "shadows"}));
+      RETURN_IF(r.Bool("shadows", &scene.lamp_shadows));
       RETURN_IF(r.Number("ambient", 0.0, 1e4, &scene.ambient));
       RETURN_IF(r.Number("diffuse", 0.0, 1e4, &scene.diffuse));
       RETURN_IF(r.Vector("direction", -1e6, 1e6, &scene.light_direction_in_cam));
@@ -405,6 +423,14 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
 Result<Scene> LoadScene(const fs::path& path) {
   ROTOSCAN_ASSIGN_OR_RETURN(std::string text, ReadFile(path, std::size_t{16} << 20));
   return ParseScene(text, path.parent_path(), path.string());
+}
+
+std::vector<Eigen::Vector3d> BoardCornersInTarget(const ObjectSpec& board) {
+  std::vector<Eigen::Vector3d> corners;
+  for (int r = 0; r < board.rows; ++r) {
+    for (int c = 0; c < board.cols; ++c) corners.emplace_back(c * board.square_mm, r * board.square_mm, 0.0);
+  }
+  return corners;
 }
 
 }  // namespace rotoscan::sim

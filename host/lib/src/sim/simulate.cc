@@ -60,6 +60,31 @@ Eigen::Isometry3d BoardPose(const ObjectSpec& board, int i, int n) {
          Eigen::AngleAxisd(tilt_x, Eigen::Vector3d::UnitX()) * Eigen::Translation3d(-board_centre);
 }
 
+bundle::FrameRecord JobFrame(const Job& job, int frame) {
+  bundle::FrameRecord record;
+  record.step = job.step;
+  record.pose = job.pose;
+  record.table_angle_rad = job.angle;
+  record.laser = static_cast<LaserState>(frame);
+  record.file = bundle::FrameFileName(job.step, record.laser, job.pose);
+  return record;
+}
+
+// True when every frame of `job` (and its line truth) is in the resumed bundle already.
+bool JobDone(const bundle::BundleWriter& writer, const Job& job, bool truth) {
+  for (int f = 0; f < 4; ++f) {
+    if (!job.mask[f]) continue;
+    const bundle::FrameRecord record = JobFrame(job, f);
+    if (!writer.HasFrame(record.file)) return false;
+    std::error_code ec;
+    if (truth && f < 2 &&
+        !std::filesystem::is_regular_file(bundle::LineTruthPath(writer.working_directory(), record), ec)) {
+      return false;
+    }
+  }
+  return true;
+}
+
 }  // namespace
 
 Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progress* progress) {
@@ -167,8 +192,8 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
     }
   }
 
-  ROTOSCAN_ASSIGN_OR_RETURN(auto writer,
-                            bundle::BundleWriter::Create(options.out, header, {options.overwrite}));
+  ROTOSCAN_ASSIGN_OR_RETURN(
+      auto writer, bundle::BundleWriter::Create(options.out, header, {options.overwrite, options.resume}));
   const std::filesystem::path work = writer->working_directory();
   if (options.truth) {
     ROTOSCAN_RETURN_IF_ERROR(geometry::WriteRigYaml(work / "truth" / "rig.yaml", scene.rig));
@@ -191,22 +216,21 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
       const std::size_t j = next.fetch_add(1);
       if (j >= jobs.size()) return;
       const Job& job = jobs[j];
+      if (JobDone(*writer, job, options.truth)) {  // written before an interruption
+        scope.Advance();
+        continue;
+      }
       const Renderer& renderer = *renderers[kind == SimulateKind::kCheckerboard ? job.pose : 0];
       const uint64_t seed = FrameSeed(scene.seed, job.pose, job.step, 0);
       RenderedStep rendered = renderer.RenderStep(job.angle, seed, job.mask);
       Status status;
       for (int f = 0; f < 4 && status.ok(); ++f) {
         if (!job.mask[f]) continue;
-        bundle::FrameRecord record;
-        record.step = job.step;
-        record.pose = job.pose;
-        record.table_angle_rad = job.angle;
-        record.laser = static_cast<LaserState>(f);
+        bundle::FrameRecord record = JobFrame(job, f);
         const int frame_index = (std::max(job.pose, 0) * std::max(steps, 1) + job.step) * 4 + f;
         record.trigger_seq = static_cast<uint32_t>(frame_index);
         record.device_time_us = static_cast<uint64_t>(std::llround(frame_index * kFramePeriodUs));
         record.exposure_us = f == 3 ? scene.sensor.natural_exposure_us : scene.sensor.laser_exposure_us;
-        record.file = bundle::FrameFileName(job.step, record.laser, job.pose);
         status = writer->AddFrame(record, rendered.frames[f]);
         if (status.ok() && options.truth && f < 2) {
           const auto truth = renderer.LineTruth(static_cast<geometry::LaserId>(f), job.angle);
@@ -229,7 +253,11 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   worker();
   for (std::thread& t : pool) t.join();
   if (!first_error.ok()) return first_error;
-  if (scope.Cancelled()) return CancelledError("rendering was cancelled");
+  if (scope.Cancelled()) {
+    return CancelledError("rendering was interrupted; " + std::to_string(writer->frame_count()) +
+                          " frames are kept in " + writer->working_directory().string() +
+                          ": run the same command with --resume to finish it");
+  }
   return writer->Finish();
 }
 

@@ -32,14 +32,18 @@
 //
 // Reading is hardened: every count is bounded, every field is type-checked, errors name the field and the
 // file, and a frame listed but missing on disk is kNotFound (ReadBundle with verify_frames) or reported
-// when the frame is loaded. A bundle being written lives in "<dir>.partial-<pid>" and is renamed to its
-// final name only by BundleWriter::Finish(): a reader never sees half a bundle.
+// when the frame is loaded. A bundle being written lives in "<dir>.partial" and is renamed to its final
+// name only by BundleWriter::Finish(): a reader never sees half a bundle. An interrupted bundle (crash,
+// Ctrl-C, unplugged device) stays in "<dir>.partial" with a journal of the frames safely written, and a
+// writer created with `resume` continues it (DESIGN.md "Files").
 #pragma once
 
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -149,16 +153,20 @@ std::string FrameFileName(int step, LaserState laser, int pose = -1);
 
 // Writes a bundle: frames are written as they come (from any thread), bundle.json at Finish(), and the
 // directory appears under its final name only when Finish() succeeds. Destroyed without Finish(), the
-// writer removes its partial directory.
+// writer keeps its partial directory if it holds frames (so that the work can be resumed) and removes it
+// otherwise.
 class BundleWriter {
  public:
   struct Options {
-    bool overwrite = false;  // replace an existing bundle at the final path
+    bool overwrite = false;  // replace an existing bundle at the final path, or an interrupted one
+    bool resume = false;     // continue an interrupted bundle (same header) instead of refusing it
   };
 
-  // Creates "<directory>.partial-<pid>" with frames/ (and truth/). kInvalidArgument if the header is
-  // invalid, kIoError if the directory cannot be created, kFailedPrecondition if `directory` exists and
-  // overwrite is off.
+  // Creates "<directory>.partial" with frames/ (and truth/), or with `resume` reopens an interrupted one.
+  // kInvalidArgument if the header is invalid, kIoError if the directory cannot be created,
+  // kFailedPrecondition if `directory` exists and overwrite is off, if an interrupted bundle is there and
+  // neither resume nor overwrite is set, if it was started with another header, or if another process is
+  // writing it. kCorruptData if its journal is damaged.
   static Result<std::unique_ptr<BundleWriter>> Create(const std::filesystem::path& directory,
                                                      const BundleHeader& header, const Options& options);
   static Result<std::unique_ptr<BundleWriter>> Create(const std::filesystem::path& directory,
@@ -174,12 +182,22 @@ class BundleWriter {
   // a duplicate file name; kIoError if the write fails.
   Status AddFrame(FrameRecord record, const cv::Mat& image);
 
+  // True when `file` (e.g. "frames/s0012_left.png") was written before the interruption of a resumed
+  // bundle: the caller may skip it. Adding it again replaces it.
+  bool HasFrame(const std::string& file) const;
+  std::size_t resumed_frame_count() const;
+  std::size_t frame_count() const;  // frames recorded so far (resumed ones included)
+  // Where a bundle for `directory` is written until it is finished.
+  static std::filesystem::path PartialDirectory(const std::filesystem::path& directory);
+
   // The partial directory, where truth/ files may be written before Finish() (truth/ exists already).
   const std::filesystem::path& working_directory() const { return working_; }
   const std::filesystem::path& final_directory() const { return final_; }
 
   // Writes bundle.json (frames sorted by pose, step, laser) and renames the directory to its final name.
   Status Finish();
+  // Gives the bundle up: the partial directory is removed (nothing to resume). No call may follow.
+  void Discard();
 
  private:
   BundleWriter(std::filesystem::path final_dir, std::filesystem::path working, BundleHeader header,
@@ -189,8 +207,12 @@ class BundleWriter {
   std::filesystem::path working_;
   BundleHeader header_;
   Options options_;
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
   std::vector<FrameRecord> frames_;
+  std::set<std::string> resumed_;  // files written before the interruption, not written again yet
+  std::FILE* journal_ = nullptr;   // journal.jsonl of the partial directory
+  int lock_fd_ = -1;               // flock on .lock of the partial directory
+  bool started_ = false;           // the partial directory was created (or overwritten) by this writer
   bool finished_ = false;
 };
 

@@ -4,13 +4,18 @@
 //
 // Observations (whatever produced them: calibration bundles, the virtual scanner, a test):
 //  * TargetView: the target's corners at one table step of one placement (a placement = one way of
-//    standing the target on the table; the target does not move on the table between steps).
-//  * LaserView: laser pixels that lie on the target's plane (z = 0 in the target frame) at one step of
-//    one placement, for one laser.
+//    standing the target on the table; the target does not move on the table between steps). A planar
+//    target (checkerboard) has its corners on z = 0; the paper's calibration object (two orthogonal planes
+//    with a 10 mm grid, calib/calibration_object.h) gives corners on two planes.
+//  * LaserView: laser pixels that lie on one plane of the target (plane_in_target: z = 0 of a board, or one
+//    face of the object) at one step of one placement, for one laser.
 //
-// Three-step initial value (CalibrateThreeStep): (1) intrinsics and distortion by OpenCV's calibrateCamera
-// on all target views (unless a camera is given), poses by solvePnP; (2) the table axis from the poses of
-// each placement (calib/axis_fit.h FitAxisFromPoses: direction, point, step angle), combined over
+// Three-step initial value (CalibrateThreeStep): (1) the camera, unless one is given: when some target view
+// is not planar (the paper's object), the paper's step 1: the 3x4 matrix of every such view by DLT with
+// Hartley normalisation (eq. 8-10, geometry/dlt.h), decomposed into K [R | t], K the median over the views
+// and no distortion (the paper neglects it); otherwise intrinsics and distortion by OpenCV's
+// calibrateCamera on the (planar) views; then every view's pose by solvePnP; (2) the table axis from the
+// poses of each placement (calib/axis_fit.h FitAxisFromPoses: direction, point, step angle), combined over
 // placements; (3) each laser plane by a robust plane fit (calib/plane_fit.h) of its pixels' rays meeting
 // the target plane.
 //
@@ -50,7 +55,9 @@ struct LaserView {
   int placement = 0;
   int step = 0;
   double table_angle_rad = 0.0;         // commanded table angle
-  std::vector<Eigen::Vector2d> pixels;  // laser line centres on the target's plane
+  std::vector<Eigen::Vector2d> pixels;  // laser line centres on the target plane below
+  // The target plane the pixels lie on, (n, d) with |n| = 1 and n . X + d = 0 in the target frame.
+  Eigen::Vector4d plane_in_target{0.0, 0.0, 1.0, 0.0};
   std::string name;
 };
 

@@ -58,6 +58,8 @@ class ProgressBar : public Progress {
   void Begin(const std::string& label, uint64_t total) override;
   void Advance(uint64_t n = 1) override;
   void End() override;
+  // True once the user interrupted the program (InterruptRequested()).
+  bool Cancelled() const override;
 
   // Whether this bar draws anything (decided at construction).
   bool enabled() const { return enabled_; }
@@ -79,6 +81,15 @@ class ProgressBar : public Progress {
   std::chrono::steady_clock::time_point start_;
   std::chrono::steady_clock::time_point last_draw_;
 };
+
+// Interrupts (Ctrl-C, SIGTERM). InstallInterruptHandler() (called by the rotoscan program, not by the
+// library) makes the first SIGINT/SIGTERM set a flag that long work sees through Progress::Cancelled(), so
+// it stops cleanly (an unfinished bundle stays resumable, no output file is left half-written); a second
+// one terminates at once. RequestInterrupt() sets the flag by hand (tests), ClearInterrupt() resets it.
+void InstallInterruptHandler();
+bool InterruptRequested();
+void RequestInterrupt();
+void ClearInterrupt();
 
 // Whether a progress bar should be drawn on `stream`: a terminal, TERM not "dumb", CI not set.
 bool ShouldDrawProgress(std::FILE* stream);

@@ -91,6 +91,15 @@ struct ExtractOptions {
   double multiple_peak_ratio = 0.5;
   // Pixels of the laser-off channel at or above this value hide the laser: such peaks are rejected.
   int off_saturation_dn = 250;
+  // Smoothing of the sub-pixel centre along the line (extract.cc, "Along-line smoothing"): each centre is
+  // replaced by a weighted local polynomial fit over the points within +-smooth_half_rows rows of the
+  // same stretch of line. A stretch ends where a row is missing or the column jumps by more than
+  // smooth_max_jump_px between neighbouring rows (a depth edge is never smoothed across); neighbours
+  // further than smooth_outlier_px from the first fit are dropped from the second. 0 rows: off.
+  int smooth_half_rows = 12;
+  int smooth_order = 1;  // of the local fit: 0 mean, 1 straight line, 2 parabola
+  double smooth_max_jump_px = 1.5;
+  double smooth_outlier_px = 0.5;
 
   // OK, or kInvalidArgument naming the bad field.
   Status Check() const;
@@ -115,8 +124,14 @@ class LineExtractor {
   ExtractOptions options_;
   std::vector<uint8_t> diff_;
   std::vector<uint16_t> block_masks_;  // per 16 pixels of the row: bits of d >= threshold
+  std::vector<float> raw_columns_;     // along-line smoothing: the centres before smoothing
   cv::Mat on_channel_, off_channel_, on_bgr_, off_bgr_;
 };
+
+// The along-line smoothing of ExtractOptions (smooth_*), applied in place to points ordered by row; exposed
+// for tests. `scratch` is reused between calls. Points keep their row, peak, width, quality and flags.
+void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, double max_jump_px,
+                     double outlier_px, std::vector<float>* scratch);
 
 // One-shot convenience.
 Result<Line> ExtractLine(const cv::Mat& on, const cv::Mat& off, const ExtractOptions& options = {});

@@ -30,7 +30,9 @@
 //                 "normal": [x,y,z] (optional; default: the plane through origin containing the axis),
 //                 "sigma_mm": Gaussian half thickness, "power", "speckle_contrast", "speckle_size_px",
 //                 "response": [r,g,b] (sensor response to 660 nm per channel) },
-//     "light": { "ambient", "diffuse", "direction": [x,y,z] (towards the lamp, camera frame) },
+//     "light": { "ambient", "diffuse", "direction": [x,y,z] (towards the lamp, camera frame),
+//                "shadows": true (the lamp's light is blocked by the object: cast and self shadows in the
+//                natural image, as a real lamp beside the scanner gives) },
 //     "objects": [ { "type": "mesh", "file": "x.obj|x.ply" (relative to the scene file),
 //                    "texture": "x.png" (OBJ with UVs), "up_axis": "y"|"z", "height_mm": 80 (scale to it),
 //                    "scale": 1 (when no height_mm) },
@@ -41,6 +43,12 @@
 //                    camera's y axis; the paper's Table 1 accuracy test),
 //                  { "type": "checkerboard", "cols", "rows", "square_mm" } (inner corners; target frame
 //                    of OpenCV: origin at the first inner corner, z into the board),
+//                  { "type": "charuco", "cols": 8, "rows": 6 (squares, as printed boards are counted),
+//                    "square_mm": 8, "marker_mm": 6, "dictionary": "DICT_5X5_100" } (a ChArUco board,
+//                    calib/charuco.h: a checkerboard of (cols - 1) x (rows - 1) inner corners whose white
+//                    squares hold ArUco markers, in the checkerboard's target frame; it is a checkerboard
+//                    object to the rest of the simulator: `simulate --kind checkerboard` or
+//                    `table-checkerboard` render it at their poses, truth/poses.csv in that frame),
 //                  { "type": "calibration_object", "square_mm": 10, "size_mm": 60 } ]
 //     each object also takes "position_mm": [x,y,z] (table frame; meshes and built-ins stand on the
 //     table), "rotation_deg": [rx,ry,rz] (about the table axes, applied x, y, z) and "color": [r,g,b]
@@ -101,8 +109,12 @@ struct ObjectSpec {
   int segments = 128;
   Eigen::Vector3d size_mm{40, 40, 40};
   double distance_mm = 300.0, angle_deg = 0.0;
-  int cols = 9, rows = 6;
+  int cols = 9, rows = 6;  // checkerboards (ChArUco included): inner corners
   double square_mm = 7.0;
+  // ChArUco (JSON type "charuco", read as a kCheckerboard): ArUco markers of this side in the white
+  // squares; 0 = a plain checkerboard.
+  double marker_mm = 0.0;
+  std::string dictionary = "DICT_5X5_100";
   Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();
   Eigen::Vector3d rotation_deg = Eigen::Vector3d::Zero();
   Eigen::Vector3d color{0.8, 0.8, 0.8};
@@ -125,6 +137,7 @@ struct Scene {
   double ambient = 0.3;
   double diffuse = 1.0;
   Eigen::Vector3d light_direction_in_cam = Eigen::Vector3d(0.3, -1.0, -1.0).normalized();
+  bool lamp_shadows = true;
   std::vector<ObjectSpec> objects;
 };
 
@@ -135,5 +148,9 @@ Result<Scene> SceneDefaults(const std::string& preset);
 Result<Scene> ParseScene(const std::string& json_text, const std::filesystem::path& base_dir,
                          const std::string& source_name);
 Result<Scene> LoadScene(const std::filesystem::path& path);
+
+// The inner corners of a checkerboard object (ChArUco included) in its target frame, row by row: the
+// index is OpenCV's ChArUco corner id. The truth that board detections are compared with.
+std::vector<Eigen::Vector3d> BoardCornersInTarget(const ObjectSpec& board);
 
 }  // namespace rotoscan::sim

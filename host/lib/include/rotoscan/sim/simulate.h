@@ -38,6 +38,7 @@ struct SimulateOptions {
   int steps = 0;                   // 0: scene.steps for scans; 1, 12, 8 for the calibration kinds
   int threads = 0;                 // 0: all cores
   bool overwrite = false;
+  bool resume = false;             // continue an interrupted bundle at `out` (same scene and options)
   bool truth = true;               // write truth/
 };
 

@@ -1,0 +1,42 @@
+// What the calibrate command shares with other commands (bench): observations from calibration bundles,
+// and the end-to-end accuracy of a calibration made from rendered bundles.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "rotoscan/calib/rig_calibration.h"
+#include "rotoscan/core/progress.h"
+#include "rotoscan/core/status.h"
+
+namespace rotoscan::cli {
+
+// Corners and laser pixels of calibration bundles (checkerboards or the paper's calibration object): every
+// (bundle, pose) is one placement.
+Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::string>& directories,
+                                                       Progress* progress);
+
+// The plane test of issue 4 (pipeline/accuracy.h) scanned with a rig calibrated from rendered calibration
+// bundles of the paper's object (data/scenes/calibration-object*.json placements), with the lens distortion
+// k1 switched on in the virtual camera: once with the three-step result (the paper: DLT, no distortion),
+// once with the joint refinement, and once with the true rig for reference. With board_poses > 0 a
+// hand-held checkerboard bundle joins the calibration (used by the joint refinement only, for distortion).
+struct CalibratedAccuracyOptions {
+  double distance_mm = 300.0;
+  double k1 = -0.2;
+  int scan_steps = 4;         // table steps of the plane scan
+  int calibration_steps = 9;  // table angles per calibration placement (over a quarter turn)
+  int board_poses = 0;        // > 0: also a hand-held checkerboard bundle of that many poses
+  std::filesystem::path work_dir;
+};
+struct CalibratedAccuracy {
+  double three_step_rms_mm = 0.0, joint_rms_mm = 0.0, true_rig_rms_mm = 0.0;
+  double three_step_mean_mm = 0.0, joint_mean_mm = 0.0, true_rig_mean_mm = 0.0;
+  std::size_t points = 0;
+  calib::RigCalibrationSummary three_step, joint;
+};
+Result<CalibratedAccuracy> RunCalibratedPlaneAccuracy(const CalibratedAccuracyOptions& options,
+                                                      Progress* progress);
+
+}  // namespace rotoscan::cli

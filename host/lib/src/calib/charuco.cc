@@ -1,0 +1,404 @@
+#include "rotoscan/calib/charuco.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+#include <utility>
+
+#include <opencv2/aruco/charuco.hpp>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rotoscan/core/check.h"
+#include "rotoscan/core/logging.h"
+
+namespace rotoscan::calib {
+namespace {
+
+struct DictionaryName {
+  const char* name;
+  cv::aruco::PREDEFINED_DICTIONARY_NAME id;
+};
+
+constexpr DictionaryName kDictionaries[] = {
+    {"DICT_4X4_50", cv::aruco::DICT_4X4_50},
+    {"DICT_4X4_100", cv::aruco::DICT_4X4_100},
+    {"DICT_4X4_250", cv::aruco::DICT_4X4_250},
+    {"DICT_4X4_1000", cv::aruco::DICT_4X4_1000},
+    {"DICT_5X5_50", cv::aruco::DICT_5X5_50},
+    {"DICT_5X5_100", cv::aruco::DICT_5X5_100},
+    {"DICT_5X5_250", cv::aruco::DICT_5X5_250},
+    {"DICT_5X5_1000", cv::aruco::DICT_5X5_1000},
+    {"DICT_6X6_50", cv::aruco::DICT_6X6_50},
+    {"DICT_6X6_100", cv::aruco::DICT_6X6_100},
+    {"DICT_6X6_250", cv::aruco::DICT_6X6_250},
+    {"DICT_6X6_1000", cv::aruco::DICT_6X6_1000},
+    {"DICT_7X7_50", cv::aruco::DICT_7X7_50},
+    {"DICT_7X7_100", cv::aruco::DICT_7X7_100},
+    {"DICT_7X7_250", cv::aruco::DICT_7X7_250},
+    {"DICT_7X7_1000", cv::aruco::DICT_7X7_1000},
+    {"DICT_ARUCO_ORIGINAL", cv::aruco::DICT_ARUCO_ORIGINAL},
+    {"DICT_APRILTAG_16h5", cv::aruco::DICT_APRILTAG_16h5},
+    {"DICT_APRILTAG_25h9", cv::aruco::DICT_APRILTAG_25h9},
+    {"DICT_APRILTAG_36h10", cv::aruco::DICT_APRILTAG_36h10},
+    {"DICT_APRILTAG_36h11", cv::aruco::DICT_APRILTAG_36h11},
+};
+
+std::string Upper(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::toupper(c); });
+  return s;
+}
+
+// The table entry for `name` (case-insensitive, "DICT_" optional), or nullptr.
+const DictionaryName* FindDictionary(const std::string& name) {
+  std::string wanted = Upper(name);
+  if (wanted.rfind("DICT_", 0) != 0) wanted = "DICT_" + wanted;
+  for (const DictionaryName& d : kDictionaries) {
+    if (Upper(d.name) == wanted) return &d;
+  }
+  return nullptr;
+}
+
+cv::Ptr<cv::aruco::Dictionary> Dictionary(const CharucoBoard& board) {
+  const DictionaryName* d = FindDictionary(board.dictionary);
+  ROTOSCAN_CHECK(d != nullptr) << "unknown dictionary " << board.dictionary << " (call Check() first)";
+  return cv::aruco::getPredefinedDictionary(d->id);
+}
+
+cv::Ptr<cv::aruco::CharucoBoard> OpenCvBoard(const CharucoBoard& board) {
+  return cv::aruco::CharucoBoard::create(board.squares_x, board.squares_y,
+                                         static_cast<float>(board.square_mm),
+                                         static_cast<float>(board.marker_mm), Dictionary(board));
+}
+
+bool IsImageFile(const std::filesystem::path& path) {
+  const std::string ext = Upper(path.extension().string());
+  return ext == ".PNG" || ext == ".JPG" || ext == ".JPEG" || ext == ".BMP" || ext == ".TIF" || ext == ".TIFF";
+}
+
+Eigen::Isometry3d PoseFromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec) {
+  cv::Mat r;
+  cv::Rodrigues(rvec, r);
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) pose.linear()(i, j) = r.at<double>(i, j);
+    pose.translation()(i) = tvec.at<double>(i);
+  }
+  return pose;
+}
+
+bool NearInteger(double x) {
+  return std::abs(x - std::round(x)) < 1e-6;
+}
+
+std::string Squares(const CharucoBoard& board) {
+  return std::to_string(board.squares_x) + "x" + std::to_string(board.squares_y);
+}
+
+}  // namespace
+
+std::vector<std::string> CharucoDictionaryNames() {
+  std::vector<std::string> names;
+  for (const DictionaryName& d : kDictionaries) names.emplace_back(d.name);
+  return names;
+}
+
+Status CharucoBoard::Check() const {
+  if (squares_x < 3 || squares_y < 3 || squares_x > 100 || squares_y > 100) {
+    return InvalidArgumentError("ChArUco board must have 3..100 squares each way, got " + Squares(*this));
+  }
+  if (!(square_mm > 0) || !std::isfinite(square_mm))
+    return InvalidArgumentError("square size must be > 0 mm");
+  if (!(marker_mm > 0) || !(marker_mm < square_mm)) {
+    return InvalidArgumentError("marker size must be > 0 mm and smaller than the square (" +
+                                std::to_string(square_mm) + " mm)");
+  }
+  const DictionaryName* d = FindDictionary(dictionary);
+  if (d == nullptr) {
+    std::string known;
+    for (const DictionaryName& k : kDictionaries) known += std::string(known.empty() ? "" : ", ") + k.name;
+    return InvalidArgumentError("unknown ArUco dictionary '" + dictionary + "' (one of " + known + ")");
+  }
+  const int available = cv::aruco::getPredefinedDictionary(d->id)->bytesList.rows;
+  if (MarkerCount() > available) {
+    return InvalidArgumentError("ChArUco board " + Squares(*this) + " needs " +
+                                std::to_string(MarkerCount()) + " markers but " + d->name + " has " +
+                                std::to_string(available) + ": use a larger dictionary");
+  }
+  return Status::Ok();
+}
+
+Eigen::Vector3d CharucoBoard::CornerInTarget(int id) const {
+  ROTOSCAN_CHECK(id >= 0 && id < CornerCount()) << "corner id " << id << " of " << CornerCount();
+  return Eigen::Vector3d((id % (squares_x - 1)) * square_mm, (id / (squares_x - 1)) * square_mm, 0.0);
+}
+
+std::vector<Eigen::Vector3d> CharucoBoard::CornersInTarget() const {
+  std::vector<Eigen::Vector3d> corners;
+  for (int id = 0; id < CornerCount(); ++id) corners.push_back(CornerInTarget(id));
+  return corners;
+}
+
+cv::Mat CharucoBoard::Draw(int pixels_per_square) const {
+  const Status ok = Check();
+  ROTOSCAN_CHECK(ok.ok()) << ok.ToString();
+  ROTOSCAN_CHECK(pixels_per_square >= 8 && pixels_per_square <= 4096)
+      << "pixels_per_square " << pixels_per_square;
+  cv::Mat image;
+  OpenCvBoard(*this)->draw(cv::Size(squares_x * pixels_per_square, squares_y * pixels_per_square), image, 0,
+                           1);
+  return image;
+}
+
+int CharucoBoard::CrispPixelsPerSquare(int min_pixels, int max_pixels) const {
+  ROTOSCAN_CHECK(min_pixels >= 1 && min_pixels <= max_pixels) << min_pixels << " .. " << max_pixels;
+  const int cells = Dictionary(*this)->markerSize + 2;  // data bits + a one-cell black border each side
+  for (int p = min_pixels; p <= max_pixels; ++p) {
+    const double marker_px = marker_mm / square_mm * p;
+    if (NearInteger(marker_px / cells) && NearInteger((p - marker_px) / 2)) return p;
+  }
+  return max_pixels;
+}
+
+std::string CharucoBoard::ToString() const {
+  std::ostringstream s;
+  s << Squares(*this) << " squares of " << square_mm << " mm, markers " << marker_mm << " mm, " << dictionary;
+  return s.str();
+}
+
+Result<CharucoBoard> ParseCharucoBoard(const std::string& squares, double square_mm, double marker_mm,
+                                       const std::string& dictionary) {
+  CharucoBoard board;
+  char x = 0, extra = 0;
+  if (std::sscanf(squares.c_str(), "%d%c%d%c", &board.squares_x, &x, &board.squares_y, &extra) != 3 ||
+      (x != 'x' && x != 'X')) {
+    return InvalidArgumentError("ChArUco board '" + squares + "' is not COLSxROWS (squares, e.g. 7x5)");
+  }
+  board.square_mm = square_mm;
+  board.marker_mm = marker_mm;
+  const DictionaryName* d = FindDictionary(dictionary);
+  board.dictionary = d != nullptr ? d->name : dictionary;
+  ROTOSCAN_RETURN_IF_ERROR(board.Check());
+  return board;
+}
+
+Result<CharucoDetection> DetectCharuco(const cv::Mat& image, const CharucoBoard& board, int min_corners) {
+  ROTOSCAN_RETURN_IF_ERROR(board.Check());
+  if (image.empty()) return InvalidArgumentError("empty image");
+  if (image.depth() != CV_8U || (image.channels() != 1 && image.channels() != 3)) {
+    return InvalidArgumentError("ChArUco detection needs an 8-bit grey or BGR image");
+  }
+  if (min_corners < 1) return InvalidArgumentError("min_corners must be >= 1");
+  cv::Mat gray;
+  if (image.channels() == 3) {
+    cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  } else {
+    gray = image;
+  }
+  const cv::Ptr<cv::aruco::CharucoBoard> cv_board = OpenCvBoard(board);
+  const cv::Ptr<cv::aruco::DetectorParameters> parameters = cv::aruco::DetectorParameters::create();
+  std::vector<std::vector<cv::Point2f>> marker_corners, rejected;
+  std::vector<int> marker_ids;
+  std::vector<cv::Point2f> corners;
+  std::vector<int> ids;
+  try {
+    cv::aruco::detectMarkers(gray, cv_board->dictionary, marker_corners, marker_ids, parameters, rejected);
+    if (!marker_ids.empty()) {
+      cv::aruco::refineDetectedMarkers(gray, cv_board, marker_corners, marker_ids, rejected);
+      // Each inner corner lies between two markers (diagonally): both must be decoded (minMarkers = 2).
+      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, gray, cv_board, corners, ids,
+                                           cv::noArray(), cv::noArray(), 2);
+    }
+  } catch (const cv::Exception& e) {
+    return InternalError("ChArUco detection failed: " + e.msg);
+  }
+  const std::string what = "ChArUco board " + board.ToString();
+  if (static_cast<int>(ids.size()) < min_corners) {
+    return NotFoundError(what + ": " + std::to_string(ids.size()) + " corners found (" +
+                         std::to_string(marker_ids.size()) +
+                         " markers), need >= " + std::to_string(min_corners));
+  }
+  if (cv::aruco::testCharucoCornersCollinear(cv_board, ids)) {
+    return NotFoundError(what + ": the " + std::to_string(ids.size()) + " corners found lie on one line");
+  }
+  // interpolateCornersCharuco refines to 0.01 px; finish to 1e-4 px in a window that stays inside the
+  // squares around the corner: the markers' edges are (square - marker) / 2 away from it (measured on the
+  // simulator's boards, sim/charuco_render_test.cc: a window of 0.9 of that margin is best; a smaller one
+  // is ill-conditioned on blurred edges, a larger one is pulled by the markers).
+  std::vector<double> sides;
+  for (const auto& m : marker_corners) {
+    for (int k = 0; k < 4; ++k) {
+      const cv::Point2f d = m[k] - m[(k + 1) % 4];
+      sides.push_back(std::hypot(d.x, d.y));
+    }
+  }
+  std::nth_element(sides.begin(), sides.begin() + sides.size() / 2, sides.end());
+  const double margin_px =
+      sides[sides.size() / 2] * (board.square_mm - board.marker_mm) / (2.0 * board.marker_mm);
+  const int half = std::clamp(static_cast<int>(std::floor(0.9 * margin_px)), 3, 10);
+  cv::cornerSubPix(gray, corners, cv::Size(half, half), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+
+  std::vector<std::size_t> order(ids.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return ids[a] < ids[b]; });
+  CharucoDetection out;
+  out.markers = static_cast<int>(marker_ids.size());
+  for (std::size_t i : order) {
+    out.ids.push_back(ids[i]);
+    out.pixels.emplace_back(corners[i].x, corners[i].y);
+    out.corners_in_target.push_back(board.CornerInTarget(ids[i]));
+  }
+  return out;
+}
+
+Status CharucoCalibrationOptions::Check() const {
+  ROTOSCAN_RETURN_IF_ERROR(board.Check());
+  if (min_views < 3) return InvalidArgumentError("min_views must be >= 3");
+  if (min_corners < 4) return InvalidArgumentError("min_corners must be >= 4");
+  return Status::Ok();
+}
+
+Result<CameraCalibration> CalibrateCameraCharuco(const std::vector<CharucoDetection>& views,
+                                                 const std::vector<std::string>& view_names, int image_width,
+                                                 int image_height, const CharucoCalibrationOptions& options) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  ROTOSCAN_CHECK_EQ(views.size(), view_names.size());
+  ROTOSCAN_CHECK(image_width > 0 && image_height > 0) << "image size " << image_width << "x" << image_height;
+  const int count = static_cast<int>(views.size());
+  if (count < options.min_views) {
+    return InvalidArgumentError("ChArUco board found in only " + std::to_string(count) +
+                                " images: need >= " + std::to_string(options.min_views) +
+                                " (capture the board at different tilts and positions across the image)");
+  }
+  std::vector<std::vector<cv::Point3f>> object_points(count);
+  std::vector<std::vector<cv::Point2f>> image_points(count);
+  for (int v = 0; v < count; ++v) {
+    const CharucoDetection& d = views[v];
+    ROTOSCAN_CHECK(d.pixels.size() == d.corners_in_target.size() && d.pixels.size() >= 4)
+        << "view " << v << ": " << d.pixels.size() << " pixels, " << d.corners_in_target.size() << " corners";
+    for (std::size_t i = 0; i < d.pixels.size(); ++i) {
+      const Eigen::Vector3d& p = d.corners_in_target[i];
+      object_points[v].emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()),
+                                    static_cast<float>(p.z()));
+      image_points[v].emplace_back(static_cast<float>(d.pixels[i].x()), static_cast<float>(d.pixels[i].y()));
+    }
+  }
+  int flags = 0;
+  if (options.fix_aspect_ratio) flags |= cv::CALIB_FIX_ASPECT_RATIO;
+  if (options.zero_tangential) flags |= cv::CALIB_ZERO_TANGENT_DIST;
+  cv::Mat k = cv::Mat::eye(3, 3, CV_64F);
+  cv::Mat dist = cv::Mat::zeros(5, 1, CV_64F);
+  std::vector<cv::Mat> rvecs, tvecs;
+  cv::Mat std_intrinsics, std_extrinsics, per_view;
+  double rms = 0.0;
+  try {
+    rms = cv::calibrateCamera(object_points, image_points, cv::Size(image_width, image_height), k, dist,
+                              rvecs, tvecs, std_intrinsics, std_extrinsics, per_view, flags,
+                              cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
+  } catch (const cv::Exception& e) {
+    return NotConvergedError("camera calibration failed: " + e.msg);
+  }
+  CameraCalibration out;
+  out.camera.width = image_width;
+  out.camera.height = image_height;
+  out.camera.fx = k.at<double>(0, 0);
+  out.camera.fy = k.at<double>(1, 1);
+  out.camera.cx = k.at<double>(0, 2);
+  out.camera.cy = k.at<double>(1, 2);
+  for (int i = 0; i < 5; ++i) out.camera.distortion[i] = dist.at<double>(i);
+  if (!out.camera.Validate().ok() || !std::isfinite(rms)) {
+    return NotConvergedError("camera calibration gave an invalid camera: " +
+                             out.camera.Validate().ToString());
+  }
+  out.rms_px = rms;
+  out.views = view_names;
+  for (int v = 0; v < count; ++v) {
+    out.corner_pixels.push_back(views[v].pixels);
+    out.per_view_rms_px.push_back(per_view.at<double>(v));
+    out.cam_from_target.push_back(PoseFromRvecTvec(rvecs[v], tvecs[v]));
+  }
+  for (int i = 0; i < 4; ++i) out.intrinsics_std[i] = std_intrinsics.at<double>(i);
+  for (int i = 0; i < 5; ++i) out.distortion_std[i] = std_intrinsics.at<double>(4 + i);
+  return out;
+}
+
+Result<CameraCalibration> CalibrateCameraFromCharucoDirectory(const std::filesystem::path& directory,
+                                                              const CharucoCalibrationOptions& options,
+                                                              Progress* progress) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  const std::string board = "ChArUco board " + options.board.ToString();
+  std::error_code ec;
+  if (!std::filesystem::is_directory(directory, ec)) {
+    return NotFoundError("image directory " + directory.string() + " does not exist");
+  }
+  std::vector<std::filesystem::path> files;
+  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
+    if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
+  }
+  if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
+  std::sort(files.begin(), files.end());
+  if (files.empty()) {
+    return NotFoundError("no images (png, jpg, bmp, tif) in " + directory.string() + ": capture at least " +
+                         std::to_string(options.min_views) + " views of the " + board);
+  }
+  ProgressScope scope(progress, "charuco", files.size());
+  std::vector<CharucoDetection> views;
+  std::vector<std::string> names, rejected;
+  int width = 0, height = 0, readable = 0;
+  for (const auto& file : files) {
+    if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
+    scope.Advance();
+    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
+    const std::string name = file.filename().string();
+    if (image.empty()) {
+      rejected.push_back(name + ": unreadable image");
+      ROTOSCAN_LOG(kWarning) << name << ": unreadable image, skipped";
+      continue;
+    }
+    ++readable;
+    if (width == 0) {
+      width = image.cols;
+      height = image.rows;
+    } else if (image.cols != width || image.rows != height) {
+      return InvalidArgumentError(name + " is " + std::to_string(image.cols) + "x" +
+                                  std::to_string(image.rows) + " but the first image is " +
+                                  std::to_string(width) + "x" + std::to_string(height) +
+                                  ": all views must come from the same camera mode");
+    }
+    Result<CharucoDetection> found = DetectCharuco(image, options.board, options.min_corners);
+    if (!found.ok()) {
+      rejected.push_back(name + ": " + found.status().message());
+      ROTOSCAN_LOG(kInfo) << name << ": " << found.status().message();
+      continue;
+    }
+    views.push_back(std::move(found).value());
+    names.push_back(name);
+  }
+  if (readable == 0) {
+    return CorruptDataError("none of the " + std::to_string(files.size()) + " image files in " +
+                            directory.string() + " could be read");
+  }
+  const std::string advice =
+      " (check that --charuco counts squares, not inner corners, that --dictionary "
+      "names the printed board's dictionary, and capture the board sharp, its "
+      "markers at least ~20 px wide, at different tilts across the image)";
+  if (views.empty()) {
+    return NotFoundError(board + " not found in any of the " + std::to_string(readable) + " images in " +
+                         directory.string() + ": capture at least " + std::to_string(options.min_views) +
+                         " views of it" + advice);
+  }
+  if (static_cast<int>(views.size()) < options.min_views) {
+    return InvalidArgumentError(board + " found in only " + std::to_string(views.size()) + " of " +
+                                std::to_string(files.size()) + " images in " + directory.string() +
+                                ": need >= " + std::to_string(options.min_views) + advice);
+  }
+  Result<CameraCalibration> result = CalibrateCameraCharuco(views, names, width, height, options);
+  if (result.ok()) result->rejected = rejected;
+  return result;
+}
+
+}  // namespace rotoscan::calib
