@@ -7,9 +7,12 @@
 //   BM_HorusBaseline                   what bq Horus does, with whole-image OpenCV operations as Horus does
 //                                      with NumPy: subtract, threshold, blur, a window around each row's
 //                                      maximum, centre of mass by a weight matrix, undistortPoints, plane
+//   BM_HorusBaselineBgr                the same on color frames (subtract the color images, split, red),
+//                                      as Horus runs with a color camera: compare with BM_ExtractBgr
 //   BM_OpenCvTunedBaseline             the same with a per-row window loop (faster than Horus; reported too)
 //   BM_StreamRead                      the memory-bandwidth bound: a plain streaming read of the same bytes
-//                                      (both frames), i.e. the fastest any single-pass extractor could go
+//                                      (both frames), i.e. the fastest any single-pass extractor could go;
+//   BM_StreamReadBgr                   the same bound for the color frames of BM_ExtractBgr
 //
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
 // 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows.
@@ -203,8 +206,8 @@ BENCHMARK(BM_OpenCvTunedBaseline)->Unit(benchmark::kMicrosecond);
 // threshold again; per row the arg-max, a mask keeping a window of +-kWindow px around it; the centre of
 // mass as (weights * image).sum(axis=1) / image.sum(axis=1) in float; then undistortPoints and the
 // ray-plane intersection.
-void BM_HorusBaseline(benchmark::State& state) {
-  const Frames& f = GrayFrames();
+void HorusBaseline(benchmark::State& state, bool color) {
+  const Frames& f = color ? BgrFrames() : GrayFrames();
   const rotoscan::geometry::CameraModel camera = Camera();
   const cv::Mat K = (cv::Mat_<double>(3, 3) << camera.fx, 0, camera.cx, 0, camera.fy, camera.cy, 0, 0, 1);
   const cv::Mat dist(1, 5, CV_64F, const_cast<double*>(camera.distortion.data()));
@@ -214,11 +217,16 @@ void BM_HorusBaseline(benchmark::State& state) {
   for (int r = 0; r < kHeight; ++r)
     for (int c = 0; c < kWidth; ++c) weights.at<float>(r, c) = static_cast<float>(c);
   cv::Mat diff, blurred, masked, image_f, weighted, sums, weighted_sums;
+  std::vector<cv::Mat> planes;
   std::vector<cv::Point2f> pixels, undistorted;
   std::vector<Eigen::Vector3d> points;
   size_t i = 0;
   for (auto _ : state) {
     cv::subtract(f.on[i], f.off[i], diff);
+    if (color) {  // Horus subtracts the color images, then takes the red channel with cv2.split
+      cv::split(diff, planes);
+      diff = planes[2];
+    }
     cv::threshold(diff, diff, 12, 0, cv::THRESH_TOZERO);
     cv::blur(diff, blurred, cv::Size(5, 5));
     cv::threshold(blurred, blurred, 12, 0, cv::THRESH_TOZERO);
@@ -249,20 +257,23 @@ void BM_HorusBaseline(benchmark::State& state) {
     benchmark::DoNotOptimize(points.data());
     i = (i + 1) % f.on.size();
   }
-  SetCounters(state, 2u * kWidth * kHeight);
+  SetCounters(state, (color ? 6u : 2u) * kWidth * kHeight);
 }
+void BM_HorusBaseline(benchmark::State& state) { HorusBaseline(state, false); }
 BENCHMARK(BM_HorusBaseline)->Unit(benchmark::kMicrosecond);
+// The same on color frames, as Horus runs with a color camera: compare with BM_ExtractBgr.
+void BM_HorusBaselineBgr(benchmark::State& state) { HorusBaseline(state, true); }
+BENCHMARK(BM_HorusBaselineBgr)->Unit(benchmark::kMicrosecond);
 
 // The bound: read every byte of both frames once (SSE2 sum of absolute differences against zero, 16 bytes
 // per instruction), nothing else.
-void BM_StreamRead(benchmark::State& state) {
-  const Frames& f = GrayFrames();
+void StreamRead(benchmark::State& state, const Frames& f) {
   size_t i = 0;
   for (auto _ : state) {
     __m128i sum = _mm_setzero_si128();
     for (const cv::Mat* m : {&f.on[i], &f.off[i]}) {
       const uint8_t* p = m->ptr<uint8_t>(0);
-      const size_t n = m->total() / 16 * 16;
+      const size_t n = m->total() * m->elemSize() / 16 * 16;
       for (size_t k = 0; k < n; k += 16) {
         sum = _mm_add_epi64(
             sum, _mm_sad_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p + k)), _mm_setzero_si128()));
@@ -271,8 +282,11 @@ void BM_StreamRead(benchmark::State& state) {
     benchmark::DoNotOptimize(sum);
     i = (i + 1) % f.on.size();
   }
-  SetCounters(state, 2u * kWidth * kHeight);
+  SetCounters(state, 2u * f.on[0].total() * f.on[0].elemSize());
 }
+void BM_StreamRead(benchmark::State& state) { StreamRead(state, GrayFrames()); }
 BENCHMARK(BM_StreamRead)->Unit(benchmark::kMicrosecond);
+void BM_StreamReadBgr(benchmark::State& state) { StreamRead(state, BgrFrames()); }
+BENCHMARK(BM_StreamReadBgr)->Unit(benchmark::kMicrosecond);
 
 }  // namespace

@@ -5,6 +5,12 @@
 // is how bundles are rendered; frames_per_s counts its 4 frames. BM_RenderLaserFrame and
 // BM_RenderNaturalFrame render one frame alone (camera rays + shading + sensor; the natural frame also
 // casts the lamp's shadow rays).
+//
+// Timings on a loaded machine are noisy; instruction counts are not. One RenderStep call of a benchmark:
+//   valgrind --tool=callgrind --toggle-collect='rotoscan::sim::Renderer::RenderStep*'
+//       build/host/bench/sim/sim_bench --benchmark_filter=BM_RenderNaturalFrame   (one command line)
+// (callgrind runs a single iteration; the first also builds the normal-deviate table, ~50 M instructions
+// once per process).
 #include <benchmark/benchmark.h>
 
 #include "rotoscan/sim/renderer.h"

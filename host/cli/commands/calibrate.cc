@@ -7,6 +7,18 @@
 // step, the laser pixels from the left/right frames against the off frame of the same step
 // (laser/extract.h), kept only inside the board's outer corners, or inside one face of the object (the line
 // also crosses the table top), each with the target plane it lies on.
+//
+// Laser pixels next to a checker edge are dropped. The line's centre is the centroid of its profile along
+// the image row, and where the target's albedo changes inside that profile (a black/white edge) the centroid
+// is pulled towards the white side, by up to the line's half width. The bias is worst when the line runs
+// along an edge of the checker (the laser planes contain the table axis and the checker's columns are
+// parallel to it on an upright board, so at some table angle the whole line lies within a square's edge):
+// on the demo's rendered bundles (2 placements x 24 angles), 390 pixels of two left-laser frames lay 2.3 px
+// off the true line and made the left plane's residual 0.048 mm (right: 0.011) and its offset error
+// 0.061 mm; without them, 0.007 mm for both. A pixel is kept only when its profile (+-1 FWHM + 1 px along
+// the row, mapped onto the target plane by the homography of the view's corners) stays inside one square;
+// pixels within the extractor's along-line smoothing window (+-smooth_half_rows) of a dropped one are
+// dropped too, since the smoothing spreads its bias along the line.
 #include <array>
 #include <cmath>
 #include <iomanip>
@@ -15,6 +27,7 @@
 #include <ostream>
 #include <tuple>
 
+#include <Eigen/SVD>
 #include <opencv2/core.hpp>
 
 #include "calibrate.h"
@@ -57,6 +70,100 @@ bool InsideQuad(const std::array<Eigen::Vector2d, 4>& quad, const Eigen::Vector2
     if (sign * distance < margin) return false;
   }
   return true;
+}
+
+// The checker squares of one target plane in the image: a homography from pixels to the plane's two in-plane
+// target coordinates (mm; the checker's edges lie at whole multiples of the square there).
+struct CheckerPlane {
+  Eigen::Matrix3d plane_from_pixel = Eigen::Matrix3d::Identity();
+  double square_mm = 0.0;
+  bool valid = false;
+};
+
+// Homography taking `from` to `to` by the normalised DLT (at least 4 points); false when degenerate.
+bool FitHomography(const std::vector<Eigen::Vector2d>& from, const std::vector<Eigen::Vector2d>& to,
+                   Eigen::Matrix3d* h) {
+  auto normaliser = [](const std::vector<Eigen::Vector2d>& points) -> Eigen::Matrix3d {
+    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+    for (const auto& p : points) mean += p;
+    mean /= static_cast<double>(points.size());
+    double spread = 0.0;
+    for (const auto& p : points) spread += (p - mean).norm();
+    spread /= static_cast<double>(points.size());
+    const double k = spread > 0 ? std::sqrt(2.0) / spread : 1.0;
+    Eigen::Matrix3d t;
+    t << k, 0, -k * mean.x(), 0, k, -k * mean.y(), 0, 0, 1;
+    return t;
+  };
+  const Eigen::Matrix3d tf = normaliser(from), tt = normaliser(to);
+  Eigen::MatrixXd a(2 * from.size(), 9);
+  for (std::size_t i = 0; i < from.size(); ++i) {
+    const Eigen::Vector3d x = tf * from[i].homogeneous();
+    const Eigen::Vector3d y = tt * to[i].homogeneous();
+    const auto r = static_cast<Eigen::Index>(2 * i);
+    a.row(r) << 0, 0, 0, -x.transpose(), y.y() * x.transpose();
+    a.row(r + 1) << x.transpose(), 0, 0, 0, -y.x() * x.transpose();
+  }
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullV);
+  const Eigen::VectorXd v = svd.matrixV().col(8);
+  if (svd.singularValues()(7) < 1e-9 * svd.singularValues()(0)) return false;
+  Eigen::Matrix3d hn;
+  hn << v(0), v(1), v(2), v(3), v(4), v(5), v(6), v(7), v(8);
+  *h = tt.inverse() * hn * tf;
+  return std::isfinite(h->sum());
+}
+
+CheckerPlane CheckerPlaneOf(const calib::TargetView& view, const Eigen::Vector4d& plane, double square_mm) {
+  CheckerPlane out;
+  out.square_mm = square_mm;
+  // The in-plane axes: the two target axes other than the plane normal's largest component.
+  int normal_axis = 0;
+  plane.head<3>().cwiseAbs().maxCoeff(&normal_axis);
+  const int a = normal_axis == 0 ? 1 : 0, b = normal_axis == 2 ? 1 : 2;
+  std::vector<Eigen::Vector2d> pixels, coords;
+  for (std::size_t i = 0; i < view.corners_in_target.size(); ++i) {
+    const Eigen::Vector3d& x = view.corners_in_target[i];
+    if (std::abs(plane.head<3>().dot(x) + plane(3)) > 1e-6) continue;
+    pixels.push_back(view.corner_pixels[i]);
+    coords.emplace_back(x(a), x(b));
+  }
+  out.valid = pixels.size() >= 4 && square_mm > 0 && FitHomography(pixels, coords, &out.plane_from_pixel);
+  return out;
+}
+
+// True when the segment between two pixels, mapped onto the target plane, crosses an edge of the checker.
+bool CrossesCheckerEdge(const CheckerPlane& plane, const Eigen::Vector2d& p, const Eigen::Vector2d& q) {
+  auto map = [&](const Eigen::Vector2d& pixel) -> Eigen::Vector2d {  // in squares
+    const Eigen::Vector3d x = plane.plane_from_pixel * pixel.homogeneous();
+    return x.hnormalized() / plane.square_mm;
+  };
+  const Eigen::Vector2d a = map(p), b = map(q);
+  return std::floor(a.x()) != std::floor(b.x()) || std::floor(a.y()) != std::floor(b.y());
+}
+
+// The points of `line` inside `outline` whose row profile lies on one checker square (see the file comment).
+std::vector<Eigen::Vector2d> LaserPixelsOnTarget(const laser::Line& line,
+                                                 const std::array<Eigen::Vector2d, 4>& outline,
+                                                 const CheckerPlane& plane, int smooth_half_rows) {
+  std::vector<Eigen::Vector2d> inside;
+  std::vector<bool> near_edge;
+  for (const auto& point : line.points) {
+    const Eigen::Vector2d p(point.column, point.row);
+    if (!InsideQuad(outline, p, 2.0)) continue;
+    const double half = std::max(1.0, static_cast<double>(point.width)) + 1.0;
+    const Eigen::Vector2d left(p.x() - half, p.y()), right(p.x() + half, p.y());
+    inside.push_back(p);
+    near_edge.push_back(plane.valid && CrossesCheckerEdge(plane, left, right));
+  }
+  std::vector<Eigen::Vector2d> kept;
+  for (std::size_t i = 0; i < inside.size(); ++i) {
+    bool clean = true;
+    for (std::size_t j = 0; j < inside.size() && clean; ++j) {
+      clean = !(near_edge[j] && std::abs(inside[j].y() - inside[i].y()) <= smooth_half_rows);
+    }
+    if (clean) kept.push_back(inside[i]);
+  }
+  return kept;
 }
 
 }  // namespace
@@ -178,10 +285,11 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
         laser_view.table_angle_rad = frame.table_angle_rad;
         laser_view.plane_in_target = face.plane_in_target;
         laser_view.name = std::filesystem::path(directory).filename().string() + "/" + frame.file;
-        for (const auto& point : line.points) {
-          const Eigen::Vector2d p(point.column, point.row);
-          if (InsideQuad(face.outline, p, 2.0)) laser_view.pixels.push_back(p);
-        }
+        laser_view.pixels =
+            LaserPixelsOnTarget(line, face.outline,
+                                CheckerPlaneOf(data.target_views[view->second], face.plane_in_target,
+                                               target.square_mm),
+                                extractor.options().smooth_half_rows);
         if (!laser_view.pixels.empty()) data.laser_views.push_back(std::move(laser_view));
       }
     }
@@ -210,23 +318,44 @@ Result<CalibratedAccuracy> RunCalibratedPlaneAccuracy(const CalibratedAccuracyOp
                                                       Progress* progress) {
   if (options.work_dir.empty()) return InvalidArgumentError("no work directory");
   const std::string camera = "\"camera\": {\"distortion\": [" + std::to_string(options.k1) + ", 0, 0, 0, 0]}";
-  // The placements of data/scenes/calibration-object.json and calibration-object-2.json.
-  const char* placements[] = {"\"position_mm\": [0, 20, 0]",
-                              "\"position_mm\": [-30, 60, 0], \"rotation_deg\": [0, 0, 30]"};
   std::vector<std::string> bundles;
-  for (int p = 0; p < 2; ++p) {
-    const std::string json = "{\"seed\": " + std::to_string(p + 1) + ", " + camera +
-                             ", \"objects\": [{\"type\": \"calibration_object\", \"square_mm\": 10, " +
-                             placements[p] + "}]}";
-    ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene,
-                              sim::ParseScene(json, options.work_dir, "calibration scene"));
-    sim::SimulateOptions simulate;
-    simulate.out = options.work_dir / ("calibration-object-" + std::to_string(p + 1));
-    simulate.kind = sim::SimulateKind::kCalibrationObject;
-    simulate.steps = options.calibration_steps;
-    simulate.overwrite = true;
-    ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, simulate, progress));
-    bundles.push_back(simulate.out.string());
+  if (options.target == CalibrationTarget::kObject) {
+    // The placements of data/scenes/calibration-object.json and calibration-object-2.json.
+    const char* placements[] = {"\"position_mm\": [0, 20, 0]",
+                                "\"position_mm\": [-30, 60, 0], \"rotation_deg\": [0, 0, 30]"};
+    for (int p = 0; p < 2; ++p) {
+      const std::string json = "{\"seed\": " + std::to_string(p + 1) + ", " + camera +
+                               ", \"objects\": [{\"type\": \"calibration_object\", \"square_mm\": 10, " +
+                               placements[p] + "}]}";
+      ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene,
+                                sim::ParseScene(json, options.work_dir, "calibration scene"));
+      sim::SimulateOptions simulate;
+      simulate.out = options.work_dir / ("calibration-object-" + std::to_string(p + 1));
+      simulate.kind = sim::SimulateKind::kCalibrationObject;
+      simulate.steps = options.calibration_steps;
+      simulate.overwrite = true;
+      ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, simulate, progress));
+      bundles.push_back(simulate.out.string());
+    }
+  } else {
+    // The placements of data/scenes/calibration.json, calibration-2.json and calibration-3.json.
+    const char* placements[] = {"\"position_mm\": [20, 20, 0]", "\"position_mm\": [-20, -20, 0]",
+                                "\"position_mm\": [0, 25, 0], \"rotation_deg\": [-25, 0, 0]"};
+    for (int p = 0; p < 3; ++p) {
+      const std::string json = "{\"seed\": " + std::to_string(p + 1) + ", " + camera +
+                               ", \"objects\": [{\"type\": \"checkerboard\", \"cols\": 9, \"rows\": 6, "
+                               "\"square_mm\": 7, " +
+                               placements[p] + "}]}";
+      ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene,
+                                sim::ParseScene(json, options.work_dir, "calibration scene"));
+      sim::SimulateOptions simulate;
+      simulate.out = options.work_dir / ("table-board-" + std::to_string(p + 1));
+      simulate.kind = sim::SimulateKind::kTableCheckerboard;
+      simulate.steps = options.calibration_steps;
+      simulate.overwrite = true;
+      ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, simulate, progress));
+      bundles.push_back(simulate.out.string());
+    }
   }
   if (options.board_poses > 0) {
     // A checkerboard held over the whole field of view: it fixes the lens distortion, which the object
@@ -263,19 +392,24 @@ Result<CalibratedAccuracy> RunCalibratedPlaneAccuracy(const CalibratedAccuracyOp
   pipeline::ProcessOptions process;
   process.merge = false;  // both lasers measure the same plane; keep every point
   CalibratedAccuracy out;
-  ROTOSCAN_ASSIGN_OR_RETURN(const pipeline::PlaneAccuracy a3,
-                            pipeline::MeasurePlaneAccuracy(simulate.out, three_step.rig, process));
-  ROTOSCAN_ASSIGN_OR_RETURN(const pipeline::PlaneAccuracy aj,
-                            pipeline::MeasurePlaneAccuracy(simulate.out, joint.estimate.rig, process));
+  // A calibrated rig may put the plane a few millimetres off: points within 5 mm of the true plane count
+  // (the true rig's, within the test's usual 2 mm).
+  constexpr double kCalibratedWindowMm = 5.0;
+  Result<pipeline::PlaneAccuracy> a3 =
+      pipeline::MeasurePlaneAccuracy(simulate.out, three_step.rig, process, kCalibratedWindowMm);
+  if (!a3.ok()) return a3.status().WithContext("plane scanned with the three-step rig");
+  Result<pipeline::PlaneAccuracy> aj =
+      pipeline::MeasurePlaneAccuracy(simulate.out, joint.estimate.rig, process, kCalibratedWindowMm);
+  if (!aj.ok()) return aj.status().WithContext("plane scanned with the jointly refined rig");
   ROTOSCAN_ASSIGN_OR_RETURN(const pipeline::PlaneAccuracy at,
                             pipeline::MeasurePlaneAccuracy(simulate.out, scene.rig, process));
-  out.three_step_rms_mm = a3.rms_mm;
-  out.three_step_mean_mm = a3.mean_mm;
-  out.joint_rms_mm = aj.rms_mm;
-  out.joint_mean_mm = aj.mean_mm;
+  out.three_step_rms_mm = a3->rms_mm;
+  out.three_step_mean_mm = a3->mean_mm;
+  out.joint_rms_mm = aj->rms_mm;
+  out.joint_mean_mm = aj->mean_mm;
   out.true_rig_rms_mm = at.rms_mm;
   out.true_rig_mean_mm = at.mean_mm;
-  out.points = aj.points;
+  out.points = aj->points;
   out.three_step = calib::Evaluate(data, three_step, calibration_options);
   out.joint = joint.summary;
   return out;

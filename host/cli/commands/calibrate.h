@@ -18,15 +18,21 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
                                                        Progress* progress);
 
 // The plane test of issue 4 (pipeline/accuracy.h) scanned with a rig calibrated from rendered calibration
-// bundles of the paper's object (data/scenes/calibration-object*.json placements), with the lens distortion
-// k1 switched on in the virtual camera: once with the three-step result (the paper: DLT, no distortion),
-// once with the joint refinement, and once with the true rig for reference. With board_poses > 0 a
-// hand-held checkerboard bundle joins the calibration (used by the joint refinement only, for distortion).
+// bundles, with the lens distortion k1 switched on in the virtual camera: once with the three-step result,
+// once with the joint refinement, and once with the true rig for reference. The calibration target:
+//  * kObject: the paper's object (data/scenes/calibration-object*.json placements); the three steps are the
+//    paper's (DLT, no distortion). With board_poses > 0 a hand-held checkerboard bundle joins the
+//    calibration (used by the joint refinement only, for distortion).
+//  * kTableBoard: the demo's capture, the checkerboard standing on the table in the placements of
+//    data/scenes/calibration.json, -2 and -3; the three steps then model distortion too (OpenCV's
+//    calibrateCamera), and the joint refinement adds the table and laser constraints to it.
+enum class CalibrationTarget { kObject, kTableBoard };
 struct CalibratedAccuracyOptions {
+  CalibrationTarget target = CalibrationTarget::kObject;
   double distance_mm = 300.0;
   double k1 = -0.2;
   int scan_steps = 4;         // table steps of the plane scan
-  int calibration_steps = 9;  // table angles per calibration placement (over a quarter turn)
+  int calibration_steps = 9;  // table angles per placement (object: over a quarter turn; board: 120 degrees)
   int board_poses = 0;        // > 0: also a hand-held checkerboard bundle of that many poses
   std::filesystem::path work_dir;
 };

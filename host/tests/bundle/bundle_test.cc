@@ -5,6 +5,8 @@
 #include <fstream>
 #include <thread>
 
+#include <cmath>
+
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
@@ -99,6 +101,7 @@ TEST(BundleTest, SixteenBitGrayFramesAreLossless) {
   BundleHeader h = SmallHeader(1, 12);
   h.kind = BundleKind::kCalibration;
   h.target = {TargetKind::kCheckerboard, 9, 6, 10.0, "board"};
+  h.target.origin_height_mm = 49.25;
   auto writer = BundleWriter::Create(scratch / "cal", h);
   ASSERT_TRUE(writer.ok());
   FrameRecord r;
@@ -113,6 +116,7 @@ TEST(BundleTest, SixteenBitGrayFramesAreLossless) {
   ASSERT_TRUE(bundle.ok()) << bundle.status().ToString();
   EXPECT_EQ(bundle->header.target.kind, TargetKind::kCheckerboard);
   EXPECT_EQ(bundle->header.target.cols, 9);
+  EXPECT_EQ(bundle->header.target.origin_height_mm, 49.25);
   ASSERT_EQ(bundle->frames.size(), 1u);
   EXPECT_EQ(bundle->frames[0].file, "frames/p03_s0000_natural.png");
   auto read = ReadFrame(*bundle, 0);
@@ -242,6 +246,19 @@ TEST(BundleTest, BadJsonNamesTheField) {
     EXPECT_NE(parsed.status().message().find(c.field), std::string::npos) << parsed.status().ToString();
     EXPECT_NE(parsed.status().message().find("b/bundle.json"), std::string::npos);
   }
+  // The target's table-top height: optional (unknown stays NaN), and refused when it is no height.
+  const std::string target = "\"frames\": [";
+  std::string with_target = good;
+  with_target.replace(with_target.find(target), target.size(),
+                      "\"target\": {\"kind\": \"table_checkerboard\", \"origin_height_mm\": 1e9}, " + target);
+  auto bad_height = ParseBundleJson(with_target, "b/bundle.json");
+  ASSERT_FALSE(bad_height.ok());
+  EXPECT_NE(bad_height.status().message().find("target.origin_height_mm"), std::string::npos);
+  with_target.replace(with_target.find("1e9"), 3, "12.5");
+  auto good_height = ParseBundleJson(with_target, "b/bundle.json");
+  ASSERT_TRUE(good_height.ok()) << good_height.status().ToString();
+  EXPECT_EQ(good_height->header.target.origin_height_mm, 12.5);
+  EXPECT_TRUE(std::isnan(ParseBundleJson(good, "b")->header.target.origin_height_mm));
   EXPECT_EQ(ParseBundleJson("{\"format\": ", "x").status().code(), StatusCode::kCorruptData);
   EXPECT_EQ(ParseBundleJson("[]", "x").status().code(), StatusCode::kCorruptData);
 }

@@ -1,6 +1,7 @@
 // `rotoscan calibrate camera` and `rotoscan calibrate BUNDLE...` through the CLI's Main, as a user runs them.
 #include <cstdio>
 #include <cstdlib>
+#include <fstream>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -68,6 +69,27 @@ TEST(CalibrateCommandTest, RigNeedsReadableCalibrationBundles) {
   EXPECT_THAT(r.err, HasSubstr("no calibration bundle"));
   r = Call({"calibrate", (dir / "missing").string(), "--out", (dir / "calib.yaml").string()});
   EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_FALSE(std::filesystem::exists(dir / "calib.yaml"));
+}
+
+// A capture where the board is never in view: the command fails saying what to capture, and writes nothing.
+TEST(CalibrateCommandTest, TargetNeverFoundSaysWhatToCapture) {
+  ScratchDir dir;
+  const std::string scene = (dir / "scene.json").string();
+  {
+    std::ofstream f(scene);
+    // A small sensor (the same 20 degree lens) keeps the rendering short.
+    f << R"({"camera": {"width": 320, "height": 240, "hfov_deg": 20},
+             "objects": [{"type": "checkerboard", "cols": 9, "rows": 6, "square_mm": 7,
+                          "position_mm": [300, 0, 0]}]})";
+  }
+  const std::string bundle = (dir / "bundle").string();
+  CliRun r = Call({"simulate", scene, "--kind", "table-checkerboard", "--steps", "3", "--out", bundle});
+  ASSERT_EQ(r.code, kExitOk) << r.err;
+  r = Call({"calibrate", bundle, "--out", (dir / "calib.yaml").string()});
+  EXPECT_EQ(r.code, kExitFailure);
+  EXPECT_THAT(r.err, HasSubstr("target was not found in any view"));
+  EXPECT_THAT(r.err, HasSubstr("whole target is in view"));
   EXPECT_FALSE(std::filesystem::exists(dir / "calib.yaml"));
 }
 

@@ -255,6 +255,21 @@ TEST(RigCalibrationTest, ClearErrorsForMissingObservations) {
   EXPECT_THAT(CalibrateThreeStep(few, {}).status().message(),
               HasSubstr("target found in only 3 views: need >= 6"));
 
+  CalibrationData none = s.data;
+  none.target_views.clear();
+  EXPECT_THAT(CalibrateThreeStep(none, {}).status().message(), HasSubstr("not found in any view"));
+
+  CalibrationData collinear = s.data;  // only the top row of corners of every view: one line
+  for (auto& v : collinear.target_views) {
+    v.corners_in_target.resize(kBoardCols);
+    v.corner_pixels.resize(kBoardCols);
+  }
+  const Status on_a_line = CalibrateThreeStep(collinear, {}).status();
+  EXPECT_EQ(on_a_line.code(), StatusCode::kInvalidArgument);
+  EXPECT_THAT(on_a_line.message(), HasSubstr("lie on one line: capture the whole target"));
+  EXPECT_EQ(RefineRig(collinear, MakeSynthetic(false, 0.0, 4).truth, {}).status().code(),
+            StatusCode::kInvalidArgument);
+
   CalibrationData no_right = s.data;
   no_right.laser_views.erase(std::remove_if(no_right.laser_views.begin(), no_right.laser_views.end(),
                                             [](const LaserView& v) { return v.laser == LaserId::kRight; }),

@@ -58,6 +58,29 @@ TEST(CameraModelTest, UndistortInvertsProjectAcrossTheImage) {
   EXPECT_LT(worst, 1e-9);
 }
 
+// The warm-started form (used to tabulate the whole image) gives the same answer as the full iteration,
+// from the neighbouring pixel's answer and from a poor guess alike.
+TEST(CameraModelTest, WarmStartedUndistortMatchesTheFullIteration) {
+  CameraModel camera = PaperCamera();
+  camera.distortion = {-0.25, 0.12, 0.0015, -0.001, -0.03};
+  double worst = 0;
+  for (int row = 0; row < camera.height; row += 37) {
+    Eigen::Vector2d previous = camera.Undistort(Eigen::Vector2d(0, row));
+    for (int col = 1; col < camera.width; col += 3) {
+      const Eigen::Vector2d pixel(col, row);
+      const Eigen::Vector2d full = camera.Undistort(pixel);
+      const Eigen::Vector2d warm = camera.Undistort(pixel, previous + Eigen::Vector2d(3.0 / camera.fx, 0.0));
+      worst = std::max(worst, (warm - full).norm());
+      previous = warm;
+    }
+  }
+  EXPECT_LT(worst * camera.fx, 1e-9);  // in pixels
+  const Eigen::Vector2d corner(camera.width - 1.0, camera.height - 1.0);
+  EXPECT_THAT(camera.Undistort(corner, Eigen::Vector2d(0.0, 0.0)), EigenNear(camera.Undistort(corner), 1e-12));
+  EXPECT_THAT(camera.Undistort(corner, Eigen::Vector2d(std::nan(""), 0.0)),
+              EigenNear(camera.Undistort(corner), 1e-12));
+}
+
 TEST(CameraModelTest, ValidateNamesTheProblem) {
   CameraModel camera = PaperCamera();
   camera.fx = 0;

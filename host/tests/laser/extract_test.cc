@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <random>
 
+#include <Eigen/Dense>
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -415,6 +416,123 @@ TEST(SmoothAlongLineTest, ParabolaFollowsACurvedLineAndOptionsAreChecked) {
   options = ExtractOptions();
   options.smooth_outlier_px = std::nan("");
   EXPECT_NE(options.Check().message().find("smooth_outlier_px"), std::string::npos);
+}
+
+// The row scan finds the runs from 16-pixel block masks; widths that are not a multiple of 16 end with an
+// overlapping block, images under 16 pixels take the portable path, and a line may straddle two blocks.
+// A noise-free narrow line at every one of these places must come out where it is, once per row.
+TEST(ExtractTest, RowScanFindsTheLineAtEveryColumnOfEveryWidth) {
+  LineSpec spec = NarrowGaussian();
+  spec.noise = 0.0;
+  ExtractOptions options;
+  options.noise_dn = 1.4;  // given: in a 9 px wide image the line is most of the pixels, no MAD holds
+  LineExtractor extractor(options);
+  Line line;
+  for (int width : {9, 16, 31, 40, 1288}) {
+    std::vector<double> centres;
+    for (double c = 3.3; c < width - 3.0; c += (width > 100 ? 7.1 : 0.9)) centres.push_back(c);
+    centres.push_back(width - 3.6);  // inside the last (overlapping) block
+    centres.push_back(15.6);         // across the boundary of the first two blocks
+    for (double centre : centres) {
+      if (centre < 3.0 || centre > width - 3.0) continue;
+      cv::Mat on, off;
+      MakePair(
+          width, 3, spec, [&](int) { return centre; }, 5, &on, &off);
+      ASSERT_TRUE(extractor.Extract(on, off, &line).ok());
+      ASSERT_EQ(line.points.size(), 3u) << "width " << width << " centre " << centre;
+      for (const LinePoint& p : line.points) {
+        EXPECT_NEAR(p.column, centre, 0.03) << "width " << width;
+        EXPECT_EQ(p.flags & kFlagMultiplePeaks, 0) << "width " << width << " centre " << centre;
+      }
+    }
+  }
+  // Two lines in one row, in different blocks of a width with an overlapping last block: both are seen
+  // (the row is flagged), the stronger one is kept.
+  cv::Mat on(1, 1288, CV_8UC1, cv::Scalar(80)), off = on.clone();
+  for (int x = -6; x <= 6; ++x) {  // sigma 2 px: 4.7 px at half maximum
+    on.at<uint8_t>(0, 100 + x) = static_cast<uint8_t>(80 + 150 * std::exp(-0.125 * x * x));
+    if (1280 + x < 1288) on.at<uint8_t>(0, 1280 + x) = static_cast<uint8_t>(80 + 120 * std::exp(-0.125 * x * x));
+  }
+  ASSERT_TRUE(extractor.Extract(on, off, &line).ok());
+  ASSERT_EQ(line.points.size(), 1u);
+  EXPECT_NEAR(line.points[0].column, 100.0, 0.05);
+  EXPECT_NE(line.points[0].flags & kFlagMultiplePeaks, 0);
+}
+
+// The fast path of SmoothAlongLine (prefix sums for interior points) against the definition: for every
+// point, a weighted least-squares polynomial over its +-h neighbours of the same stretch, then a second
+// fit without the neighbours farther than outlier_px from the first, evaluated at the point. Written here
+// directly with Eigen, on a noisy curved line with depth edges, a gap and outliers.
+double DirectSmoothedColumn(const std::vector<LinePoint>& raw, int i, int lo, int hi, int h, int order,
+                            double outlier_px) {
+  auto solve = [&](const std::vector<int>& use) {
+    const int terms = order + 1;
+    Eigen::MatrixXd a(static_cast<int>(use.size()), terms);
+    Eigen::VectorXd b(static_cast<int>(use.size()));
+    for (size_t k = 0; k < use.size(); ++k) {
+      const double x = use[k] - i;
+      const double sw = std::sqrt(h + 1 - std::abs(x));
+      for (int t = 0; t < terms; ++t) a(static_cast<int>(k), t) = sw * std::pow(x, t);
+      b(static_cast<int>(k)) = sw * raw[static_cast<size_t>(use[k])].column;
+    }
+    // Fewer distinct rows than terms: fall back to a lower order, as the implementation does.
+    Eigen::VectorXd coefficients = Eigen::VectorXd::Zero(3);
+    int t = terms;
+    while (t > 1 && static_cast<int>(use.size()) < t) --t;
+    coefficients.head(t) = a.leftCols(t).colPivHouseholderQr().solve(b);
+    return coefficients;
+  };
+  std::vector<int> all;
+  for (int j = lo; j <= hi; ++j) all.push_back(j);
+  const Eigen::VectorXd first = solve(all);
+  std::vector<int> kept;
+  for (int j : all) {
+    const double x = j - i;
+    const double predicted = first(0) + x * first(1) + x * x * first(2);
+    if (j == i || std::abs(raw[static_cast<size_t>(j)].column - predicted) <= outlier_px) kept.push_back(j);
+  }
+  return kept.size() == all.size() ? first(0) : solve(kept)(0);
+}
+
+TEST(SmoothAlongLineTest, MatchesTheDefiningWeightedFit) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.15);
+  std::vector<LinePoint> raw;
+  for (int r = 0; r < 700; ++r) {
+    if (r >= 300 && r < 304) continue;  // a gap
+    LinePoint p;
+    p.row = r;
+    double c = 500.0 + 0.6 * r + 0.004 * (r - 350.0) * (r - 350.0) / 10.0 + noise(rng);
+    if (r >= 450) c += 6.0;                    // a depth edge
+    if (r % 97 == 0) c += (r % 2 ? 0.9 : -1.2);  // wrong peaks inside stretches
+    p.column = static_cast<float>(c);
+    raw.push_back(p);
+  }
+  std::vector<float> scratch;
+  for (int order : {0, 1, 2}) {
+    for (int h : {3, 12}) {
+      std::vector<LinePoint> points = raw;
+      SmoothAlongLine(&points, h, order, 1.5, 0.5, &scratch);
+      // Stretches as the definition says: consecutive rows, column steps <= 1.5 px.
+      int start = 0;
+      const int n = static_cast<int>(raw.size());
+      double worst = 0;
+      while (start < n) {
+        int end = start;
+        while (end + 1 < n && raw[end + 1].row == raw[end].row + 1 &&
+               std::abs(raw[end + 1].column - raw[end].column) <= 1.5)
+          ++end;
+        for (int i = start; i <= end; ++i) {
+          const int lo = std::max(start, i - h), hi = std::min(end, i + h);
+          if (lo == hi) continue;
+          const double expected = DirectSmoothedColumn(raw, i, lo, hi, h, order, 0.5);
+          worst = std::max(worst, std::abs(points[static_cast<size_t>(i)].column - expected));
+        }
+        start = end + 1;
+      }
+      EXPECT_LT(worst, 2e-4) << "order " << order << " h " << h;  // float columns: ~6e-5 px at 500 px
+    }
+  }
 }
 
 }  // namespace

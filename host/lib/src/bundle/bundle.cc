@@ -272,6 +272,8 @@ std::string BundleJson(const BundleHeader& header, const std::vector<FrameRecord
                       {"rows", header.target.rows},
                       {"square_mm", header.target.square_mm},
                       {"description", header.target.description}};
+    if (std::isfinite(header.target.origin_height_mm))
+      root["target"]["origin_height_mm"] = header.target.origin_height_mm;
   }
   json list = json::array();
   for (const FrameRecord& f : frames) list.push_back(FrameJson(f));
@@ -360,7 +362,12 @@ Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& 
     if (st.ok()) st = tgt.Int("rows", 0, 1000, &h.target.rows, false);
     if (st.ok()) st = tgt.Number("square_mm", &h.target.square_mm, false);
     if (st.ok()) st = tgt.String("description", &h.target.description, false);
+    if (st.ok()) st = tgt.Number("origin_height_mm", &h.target.origin_height_mm, false);
     if (!st.ok()) return fail(st);
+    if (!std::isnan(h.target.origin_height_mm) &&
+        !(std::abs(h.target.origin_height_mm) <= 10000.0)) {
+      return fail(CorruptDataError("field 'target.origin_height_mm' must be a height in mm (|h| <= 10 m)"));
+    }
     auto tk = ParseTargetKind(target_kind);
     if (!tk.ok()) return fail(CorruptDataError("field 'target.kind': " + tk.status().message()));
     h.target.kind = *tk;

@@ -82,6 +82,11 @@ Status CheckData(const CalibrationData& data, const RigCalibrationOptions& optio
   }
   if (!(data.nominal_step_rad > 0)) return InvalidArgumentError("nominal table step angle must be > 0");
   const int views = static_cast<int>(data.target_views.size());
+  if (views == 0) {
+    return InvalidArgumentError(
+        "the target was not found in any view: check that the bundle's target (pattern size, square size) "
+        "is the one captured, that the whole target is in view, lit and in focus");
+  }
   if (views < options.min_target_views) {
     return InvalidArgumentError("target found in only " + std::to_string(views) +
                                 " views: need >= " + std::to_string(options.min_target_views) +
@@ -97,6 +102,19 @@ Status CheckData(const CalibrationData& data, const RigCalibrationOptions& optio
     if (v.corners_in_target.size() < 6) {
       return InvalidArgumentError("view " + v.name + ": only " + std::to_string(v.corners_in_target.size()) +
                                   " target corners: need >= 6");
+    }
+    // Corners on one line fix neither the camera nor the pose (a partial detection, a one-row target).
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const auto& c : v.corners_in_target) mean += c;
+    mean /= static_cast<double>(v.corners_in_target.size());
+    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+    for (const auto& c : v.corners_in_target) scatter += (c - mean) * (c - mean).transpose();
+    const Eigen::Vector3d spread =
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter).eigenvalues().cwiseMax(0.0).cwiseSqrt();
+    if (!(spread(1) > 1e-3 * spread(2))) {
+      return InvalidArgumentError("view " + v.name + ": its " + std::to_string(v.corners_in_target.size()) +
+                                  " target corners lie on one line: capture the whole target, at least two "
+                                  "rows of corners");
     }
     steps[v.placement].insert(v.step);
   }

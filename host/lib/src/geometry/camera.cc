@@ -67,23 +67,38 @@ Eigen::Vector2d CameraModel::Undistort(const Eigen::Vector2d& pixel) const {
     DistortNormalized(distortion.data(), p.x(), p.y(), &xd, &yd);
     p += target - Eigen::Vector2d(xd, yd);
   }
-  for (int i = 0; i < 5; ++i) {
+  PolishUndistorted(target, 5, &p);
+  return p;
+}
+
+bool CameraModel::PolishUndistorted(const Eigen::Vector2d& target, int iterations, Eigen::Vector2d* p) const {
+  for (int i = 0; i < iterations; ++i) {
     double xd, yd;
-    DistortNormalized(distortion.data(), p.x(), p.y(), &xd, &yd);
+    DistortNormalized(distortion.data(), p->x(), p->y(), &xd, &yd);
     const Eigen::Vector2d residual(xd - target.x(), yd - target.y());
-    if (residual.norm() < 1e-15) break;
+    if (residual.norm() < 1e-15) return true;
     constexpr double h = 1e-7;
     Eigen::Matrix2d jacobian;
     for (int c = 0; c < 2; ++c) {
-      Eigen::Vector2d q = p;
+      Eigen::Vector2d q = *p;
       q[c] += h;
       double xh, yh;
       DistortNormalized(distortion.data(), q.x(), q.y(), &xh, &yh);
       jacobian.col(c) = (Eigen::Vector2d(xh, yh) - Eigen::Vector2d(xd, yd)) / h;
     }
-    p -= jacobian.lu().solve(residual);
+    *p -= jacobian.lu().solve(residual);
   }
-  return p;
+  double xd, yd;
+  DistortNormalized(distortion.data(), p->x(), p->y(), &xd, &yd);
+  return (Eigen::Vector2d(xd, yd) - target).norm() < 1e-13;
+}
+
+Eigen::Vector2d CameraModel::Undistort(const Eigen::Vector2d& pixel, const Eigen::Vector2d& guess) const {
+  const Eigen::Vector2d target((pixel.x() - cx) / fx, (pixel.y() - cy) / fy);
+  if (!HasDistortion()) return target;
+  Eigen::Vector2d p = guess;
+  if (p.allFinite() && PolishUndistorted(target, 4, &p)) return p;
+  return Undistort(pixel);
 }
 
 Eigen::Vector3d CameraModel::PixelToRay(const Eigen::Vector2d& pixel) const {

@@ -66,7 +66,9 @@
 // error floor is not speckle alone (its texture changes the albedo across the line, which differencing
 // does not remove). +-12 rows straight is the default because it meets the target on the plane and is
 // still better than no smoothing on Spot; smooth_order = 2 is the better choice for strongly curved
-// objects.
+// objects. (The parabola rows were measured before a fix to the parabola's curvature term, which only
+// the outlier test of the second fit reads; SmoothAlongLineTest.MatchesTheDefiningWeightedFit checks
+// every order against a direct weighted least-squares fit.)
 #include "rotoscan/laser/extract.h"
 
 #include <algorithm>
@@ -105,7 +107,8 @@ struct Candidate {
 
 // Robust noise sigma of (on - off) from a sparse sample: 1.4826 * MAD, the median interpolated within
 // the integer histogram bins so that sub-DN noise is not rounded to 0 or 1.
-double EstimateNoise(const cv::Mat& on, const cv::Mat& off) {
+double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
+  const int channels = on.channels();
   std::array<uint32_t, 511> histogram{};
   // 16 rows, every 4th pixel: ~5,000 samples at 1288x964, enough for a MAD to a few percent, and cheap
   // (a denser sample was 17% of the extraction time).
@@ -116,7 +119,8 @@ double EstimateNoise(const cv::Mat& on, const cv::Mat& off) {
     const uint8_t* a = on.ptr<uint8_t>(r);
     const uint8_t* b = off.ptr<uint8_t>(r);
     for (int c = 0; c < on.cols; c += col_step) {
-      ++histogram[static_cast<size_t>(int{a[c]} - int{b[c]} + 255)];
+      const int k = c * channels + channel;
+      ++histogram[static_cast<size_t>(int{a[k]} - int{b[k]} + 255)];
       ++total;
     }
   }
@@ -139,6 +143,13 @@ double EstimateNoise(const cv::Mat& on, const cv::Mat& off) {
   // Deviations are integers: bin 0 holds |x - m| in [0, 0.5), bin j holds [j - 0.5, j + 0.5).
   const double mad = std::max(0.0, interpolated_median(deviation, 512, total) + 0.0);
   return 1.4826 * std::max(0.0, mad);
+}
+
+// Scratch of the along-line smoothing's fast path, per thread (SmoothAlongLine is a free function with a
+// public signature; a thread-local buffer keeps it allocation-free from the second frame on).
+std::vector<double>& prefix_scratch() {
+  thread_local std::vector<double> buffer;
+  return buffer;
 }
 
 // Linear position where d crosses `level` between i (below) and j (at or above), j = i +- 1.
@@ -336,9 +347,7 @@ Status LineExtractor::Extract(const cv::Mat& on, const cv::Mat& off, Line* line)
   if (options_.channel == Channel::kGreen) index = 1;
   if (options_.channel == Channel::kBlue) index = 0;
   if (layout == PixelLayout::kRgb) index = 2 - index;
-  cv::extractChannel(*on_color, on_channel_, index);
-  cv::extractChannel(*off_color, off_channel_, index);
-  return ExtractFromChannel(on_channel_, off_channel_, line);
+  return ExtractRows(*on_color, *off_color, index, line);
 }
 
 Status LineExtractor::ExtractFromChannel(const cv::Mat& on_channel, const cv::Mat& off_channel, Line* line) {
@@ -347,62 +356,96 @@ Status LineExtractor::ExtractFromChannel(const cv::Mat& on_channel, const cv::Ma
       off_channel.type() != CV_8UC1) {
     return InvalidArgumentError("laser channel images must be non-empty, single-channel 8-bit, same size");
   }
+  return ExtractRows(on_channel, off_channel, 0, line);
+}
+
+// Color input is read in bands of kBandRows rows: OpenCV's vectorised cv::split deinterleaves a band of
+// both frames into small buffers that stay in the L2 cache, and the row loop reads the laser channel
+// there (cv::extractChannel goes through the generic, scalar mixChannels: 3x slower). The frames are read from memory once, instead of once by a whole-frame channel copy
+// and again by the row loop (laser_bench BM_ExtractBgr: 913 -> see README).
+constexpr int kBandRows = 32;
+
+Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line) {
   const ExtractOptions& o = options_;
-  const int rows = on_channel.rows;
-  const int cols = on_channel.cols;
+  const int rows = on.rows;
+  const int cols = on.cols;
+  const bool banded = on.channels() > 1;
   line->points.clear();
   line->stats = LineStats{};
   LineStats& stats = line->stats;
   stats.rows = rows;
-  stats.noise_dn = o.noise_dn > 0 ? o.noise_dn : EstimateNoise(on_channel, off_channel);
+  stats.noise_dn = o.noise_dn > 0 ? o.noise_dn : EstimateNoise(on, off, channel);
   const double threshold_real = std::max(o.min_contrast_dn, o.min_snr * stats.noise_dn);
   const int threshold = static_cast<int>(std::ceil(std::min(threshold_real, 255.0)));
   stats.threshold_dn = threshold;
   diff_.resize(static_cast<size_t>(cols) + 16);
-  block_masks_.resize(static_cast<size_t>(cols) / 16 + 1);
+  block_starts_.resize(static_cast<size_t>(cols) / 16 + 2);
+  block_masks_.resize(static_cast<size_t>(cols) / 16 + 2);
   uint8_t* d = diff_.data();
 
   std::array<Candidate, 32> candidates;
   double previous_column = -1.0;
   int previous_row = -10;
   for (int r = 0; r < rows; ++r) {
-    const uint8_t* a = on_channel.ptr<uint8_t>(r);
-    const uint8_t* b = off_channel.ptr<uint8_t>(r);
-    // Step 1: saturating difference and row maximum, 16 pixels per instruction (at -O2 the compiler
-    // does not vectorise this loop by itself; measured 5x slower).
-    uint8_t row_max = 0;
-    int i0 = 0;
-#if defined(__SSE2__)
-    const __m128i t = _mm_set1_epi8(static_cast<char>(threshold));
-    {
-      __m128i vmax = _mm_setzero_si128();
-      uint16_t* masks = block_masks_.data();
-      for (; i0 + 16 <= cols; i0 += 16) {
-        const __m128i v = _mm_subs_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a + i0)),
-                                        _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + i0)));
-        _mm_storeu_si128(reinterpret_cast<__m128i*>(d + i0), v);
-        vmax = _mm_max_epu8(vmax, v);
-        // Bits of the pixels >= threshold, for step 3.
-        *masks++ = static_cast<uint16_t>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, t), v)));
+    const uint8_t* a;
+    const uint8_t* b;
+    if (banded) {
+      if (r % kBandRows == 0) {
+        const cv::Range band(r, std::min(rows, r + kBandRows));
+        cv::split(on.rowRange(band), on_planes_);
+        cv::split(off.rowRange(band), off_planes_);
       }
-      vmax = _mm_max_epu8(vmax, _mm_srli_si128(vmax, 8));
-      vmax = _mm_max_epu8(vmax, _mm_srli_si128(vmax, 4));
-      vmax = _mm_max_epu8(vmax, _mm_srli_si128(vmax, 2));
-      vmax = _mm_max_epu8(vmax, _mm_srli_si128(vmax, 1));
-      row_max = static_cast<uint8_t>(_mm_cvtsi128_si32(vmax) & 0xFF);
+      a = on_planes_[static_cast<size_t>(channel)].ptr<uint8_t>(r % kBandRows);
+      b = off_planes_[static_cast<size_t>(channel)].ptr<uint8_t>(r % kBandRows);
+    } else {
+      a = on.ptr<uint8_t>(r);
+      b = off.ptr<uint8_t>(r);
     }
+    // Step 1: saturating difference, and the 16-pixel blocks that hold a pixel >= threshold, compacted
+    // into (start, bit mask) pairs without a branch. Nothing else is read per pixel, so a row without
+    // the laser costs two loads, four vector instructions and a store per 16 pixels (the loop runs at
+    // the memory-bandwidth bound, laser_bench). A width that is not a multiple of 16 ends with one
+    // overlapping block whose already-seen bits are cleared.
+    int block_count = 0;
+    {
+      int* starts = block_starts_.data();
+      uint16_t* masks = block_masks_.data();
+      auto push = [&](int start, unsigned mask) {
+        starts[block_count] = start;
+        masks[block_count] = static_cast<uint16_t>(mask);
+        block_count += mask != 0;
+      };
+      int i0 = 0;
+#if defined(__SSE2__)
+      const __m128i t = _mm_set1_epi8(static_cast<char>(threshold));
+      auto block = [&](int at) {
+        const __m128i v = _mm_subs_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a + at)),
+                                        _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + at)));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(d + at), v);
+        return static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, t), v)));
+      };
+      for (; i0 + 16 <= cols; i0 += 16) push(i0, block(i0));
+      if (i0 < cols && cols >= 16) {
+        const int at = cols - 16;
+        push(at, block(at) & ~((1u << (i0 - at)) - 1u));
+        i0 = cols;
+      }
 #endif
-    for (int i = i0; i < cols; ++i) {
-      const uint8_t x = a[i], y = b[i];
-      const uint8_t v = static_cast<uint8_t>(x > y ? x - y : 0);
-      d[i] = v;
-      row_max = v > row_max ? v : row_max;
+      for (; i0 < cols; i0 += 16) {  // portable path (and images narrower than 16 pixels)
+        unsigned mask = 0;
+        for (int k = 0; k < 16 && i0 + k < cols; ++k) {
+          const uint8_t x = a[i0 + k], y = b[i0 + k];
+          d[i0 + k] = static_cast<uint8_t>(x > y ? x - y : 0);
+          mask |= static_cast<unsigned>(d[i0 + k] >= threshold) << k;
+        }
+        push(i0, mask);
+      }
     }
-    if (row_max < threshold) {
+    if (block_count == 0) {  // step 2: no pixel reaches the threshold
       ++stats.low_contrast;
       continue;
     }
-    // Step 3: candidates = runs of d >= threshold.
+    // Step 3: candidates = runs of d >= threshold, found from the set bits of the blocks alone.
     int count = 0;
     auto add_run = [&](int run_first, int run_last) {
       if (count >= static_cast<int>(candidates.size())) return;
@@ -433,32 +476,21 @@ Status LineExtractor::ExtractFromChannel(const cv::Mat& on_channel, const cv::Ma
       }
       ++count;
     };
-    int run_start = -1;
-    int i = 0;
-#if defined(__SSE2__)
-    for (; i + 16 <= cols; i += 16) {
-      const int mask = block_masks_[static_cast<size_t>(i / 16)];  // bit set: d >= threshold
-      if (mask == 0 && run_start < 0) continue;
-      if (mask == 0xFFFF && run_start >= 0) continue;
-      for (int j = i; j < i + 16; ++j) {
-        if ((mask >> (j - i)) & 1) {
-          if (run_start < 0) run_start = j;
-        } else if (run_start >= 0) {
-          add_run(run_start, j - 1);
-          run_start = -1;
+    int run_start = -1, run_last = -2;
+    for (int k = 0; k < block_count; ++k) {
+      const int base = block_starts_[static_cast<size_t>(k)];
+      unsigned mask = block_masks_[static_cast<size_t>(k)];
+      while (mask != 0) {
+        const int j = base + __builtin_ctz(mask);
+        mask &= mask - 1;
+        if (j != run_last + 1) {
+          if (run_start >= 0) add_run(run_start, run_last);
+          run_start = j;
         }
+        run_last = j;
       }
     }
-#endif
-    for (; i < cols; ++i) {
-      if (d[i] >= threshold) {
-        if (run_start < 0) run_start = i;
-      } else if (run_start >= 0) {
-        add_run(run_start, i - 1);
-        run_start = -1;
-      }
-    }
-    if (run_start >= 0) add_run(run_start, cols - 1);
+    add_run(run_start, run_last);
 
     // Step 4: plausibility.
     int best = -1;
@@ -573,7 +605,7 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
       if (std::abs(det) > 1e-9 * s0 * s2 * s4) {  // not enough distinct rows: fall back to the line
         f.a = (t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2)) / det;
         f.b = (s0 * (t1 * s4 - t2 * s3) - t0 * (s1 * s4 - s3 * s2) + s2 * (s1 * t2 - t1 * s2)) / det;
-        f.q = (s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s3 * t0) + t0 * (s1 * s3 - s2 * s2)) / det;
+        f.q = (s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)) / det;
         f.a += ri;
         return f;
       }
@@ -590,8 +622,7 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   };
   // Two passes: the second without the neighbours the first does not explain (a glint, a wrong peak),
   // only when there are such. The point itself always stays, so its neighbours alone cannot move it.
-  auto robust_fit = [&](int i, int lo, int hi) {
-    const Fit first = fit(i, lo, hi, [](int) { return true; });
+  auto robust_fit_from = [&](int i, int lo, int hi, const Fit& first) {
     auto explained = [&](int j) {
       const double x = j - i;
       return j == i || std::abs(raw[j] - (first.a + x * (first.b + x * first.q))) <= outlier_px;
@@ -600,6 +631,80 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     for (int j = lo; j <= hi && all; ++j) all = explained(j);
     return all ? first.a : fit(i, lo, hi, explained).a;
   };
+  auto robust_fit = [&](int i, int lo, int hi) {
+    return robust_fit_from(i, lo, hi, fit(i, lo, hi, [](int) { return true; }));
+  };
+  // Fast path for a point whose window [i - h, i + h] lies inside its stretch, for order 0 and 1 (the
+  // common case: all but 2h points of each stretch). The window is symmetric, so the odd moment s1
+  // vanishes and the fit is a = t0 / s0, b = t1 / s2, with t0 = sum w y and t1 = sum w x y over the
+  // triangular weights w = h + 1 - |x|. A triangle of half-width h is a box of h + 1 taps convolved with
+  // itself, and t1 = tri(j y_j)(i) - i tri(y)(i), so both come from prefix sums in O(1) per point (the
+  // direct sums cost 2h + 1 dependent additions each). Columns are taken relative to the stretch's first
+  // column to keep the sums small. When a neighbour fails the outlier test, the general fit decides.
+  const int h = half_rows;
+  const int box = h + 1;
+  double s0_sym = 0, s2_sym = 0;
+  for (int x = -h; x <= h; ++x) {
+    const double w = h + 1 - std::abs(x);
+    s0_sym += w;
+    s2_sym += w * x * x;
+  }
+  std::vector<double>& prefix = prefix_scratch();
+  auto smooth_stretch = [&](int start, int end) {
+    const int len = end - start + 1;
+    const double origin = raw[start];
+    const bool fast = order <= 1 && len >= 2 * h + 1;
+    if (fast) {
+      // Layout: P_y, P_jy (prefix sums of y and j y, j from the stretch start), then the box sums of both
+      // over box taps starting at each index, then their prefix sums.
+      const size_t m = static_cast<size_t>(len);
+      prefix.assign(6 * (m + 1), 0.0);
+      double* py = prefix.data();
+      double* pjy = py + (m + 1);
+      double* by = pjy + (m + 1);
+      double* bjy = by + (m + 1);
+      double* qy = bjy + (m + 1);
+      double* qjy = qy + (m + 1);
+      for (int k = 0; k < len; ++k) {
+        const double y = raw[start + k] - origin;
+        py[k + 1] = py[k] + y;
+        pjy[k + 1] = pjy[k] + k * y;
+      }
+      const int boxes = len - box + 1;  // box sums over [k, k + h]
+      for (int k = 0; k < boxes; ++k) {
+        by[k] = py[k + box] - py[k];
+        bjy[k] = pjy[k + box] - pjy[k];
+        qy[k + 1] = qy[k] + by[k];
+        qjy[k + 1] = qjy[k] + bjy[k];
+      }
+      for (int k = h; k + h < len; ++k) {
+        // tri(v)(k) = sum_{u = k - h}^{k} box(v)[u]: u runs over the h + 1 box starts whose box covers k.
+        const double t0 = qy[k + 1] - qy[k - h];
+        const double t1 = (qjy[k + 1] - qjy[k - h]) - k * t0;
+        const double fa = t0 / s0_sym;
+        const double fb = order >= 1 ? t1 / s2_sym : 0.0;
+        const int i = start + k;
+        bool explained = true;
+        for (int x = -h; x <= h; ++x) {
+          explained &= std::abs(raw[i + x] - origin - (fa + x * fb)) <= outlier_px;
+        }
+        if (explained) {
+          p[i].column = static_cast<float>(fa + origin);
+        } else {
+          Fit first;  // the fit above, in the general fit's terms
+          first.a = fa + origin;
+          first.b = fb;
+          p[i].column = static_cast<float>(robust_fit_from(i, i - h, i + h, first));
+        }
+      }
+    }
+    for (int i = start; i <= end; ++i) {
+      if (fast && i - h >= start && i + h <= end) continue;
+      const int lo = std::max(start, i - h), hi = std::min(end, i + h);
+      if (lo == hi) continue;
+      p[i].column = static_cast<float>(robust_fit(i, lo, hi));
+    }
+  };
   int start = 0;  // first point of the current stretch
   while (start < n) {
     int end = start;  // last point of the stretch, inclusive
@@ -607,11 +712,7 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
            std::abs(raw[end + 1] - raw[end]) <= max_jump_px) {
       ++end;
     }
-    for (int i = start; i <= end; ++i) {
-      const int lo = std::max(start, i - half_rows), hi = std::min(end, i + half_rows);
-      if (lo == hi) continue;
-      p[i].column = static_cast<float>(robust_fit(i, lo, hi));
-    }
+    smooth_stretch(start, end);
     start = end + 1;
   }
 }

@@ -18,9 +18,9 @@ enum class Pattern { kNone, kChecker, kCalibrationObject, kCharuco };
 struct Mesh {
   std::vector<Eigen::Vector3f> vertices;  // table frame, mm
   std::vector<Eigen::Vector3i> faces;
-  std::vector<Eigen::Vector3f> colors;    // per-vertex albedo RGB 0..1 (optional)
-  std::vector<Eigen::Vector2f> uv;        // 3 per face (optional, with texture)
-  cv::Mat texture;                        // CV_32FC3, BGR albedo 0..1
+  std::vector<Eigen::Vector3f> colors;      // per-vertex albedo RGB 0..1 (optional)
+  std::vector<Eigen::Vector2f> uv;          // 3 per face (optional, with texture)
+  cv::Mat texture;                          // CV_32FC3, BGR albedo 0..1
   Eigen::Vector3f color{0.8f, 0.8f, 0.8f};  // uniform albedo RGB
   Pattern pattern = Pattern::kNone;
   int cols = 0, rows = 0;
@@ -41,6 +41,10 @@ struct Mesh {
   Eigen::Vector3f Albedo(unsigned face, float u, float v, const Eigen::Vector3d& point_in_table,
                          const Eigen::Vector3d& footprint_x = Eigen::Vector3d::Zero(),
                          const Eigen::Vector3d& footprint_y = Eigen::Vector3d::Zero()) const;
+  // True when Albedo is `color` everywhere (no pattern, texture or vertex colors).
+  bool UniformAlbedo() const {
+    return pattern == Pattern::kNone && (texture.empty() || uv.empty()) && colors.empty();
+  }
 };
 
 // The table top: a disk of `radius` at z = 0 of the table frame, dark diffuse.

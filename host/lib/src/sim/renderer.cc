@@ -3,7 +3,9 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -57,6 +59,10 @@ struct Renderer::Impl {
     if (fx == 0.0f && fy == 0.0f) return at(y0, x0);
     return (1 - fy) * ((1 - fx) * at(y0, x0) + fx * at(y0, x0 + 1)) +
            fy * ((1 - fx) * at(y0 + 1, x0) + fx * at(y0 + 1, x0 + 1));
+  }
+  // The same at the centre of pixel (x, y) (0 <= x < width, 0 <= y < height): a node of the grid.
+  const Eigen::Vector3f& RayAtCentre(int x, int y) const {
+    return (*ray_grid)[(y + 1) * grid_width + (x + 1)];
   }
 
   // True when something lies on the segment from `from` towards `to` (table frame), excluding `gap` mm
@@ -199,13 +205,95 @@ bundle::TruthMesh Renderer::ObjectMesh() const {
 
 namespace {
 
-// The sensor model of scene.h on `electrons` (CV_32FC3, BGR, mean electrons per pixel), which is used as
-// scratch space and left undefined. Every pass is a simple loop over contiguous floats (vectorised) or an
-// OpenCV call; the noise loop needs sqrt without errno, hence -fno-math-errno on this file.
-cv::Mat SensorResponse(const SensorModel& s, cv::Mat& electrons, uint64_t seed, cv::Mat& raw_scratch,
-                       cv::Mat& normal_scratch) {
+// Standard normal deviates for the shot/read noise and the speckle. cv::RNG's fill took ~55 instructions
+// per deviate, which made the noise of one frame (3.7 M deviates) cost as much as its ray casting; these
+// take ~25 and no unpredictable branch (a branch on the random sign alone cost ~15 ms per frame). A
+// deviate is a function of (stream key, index) alone: 32 bits from a SplitMix64 hash of the index (two
+// deviates per hash), the low bit the sign and the other 31 a two-sided tail probability w, uniform on
+// [2^-32, 1] (the midpoints of 2^31 equal cells), then |z| = Φ⁻¹(1 - w/2) from a table. The table is
+// indexed by w's float exponent and top 6 mantissa bits (64 bins per octave over 32 octaves: the tails
+// get as fine bins as the centre) and interpolates linearly in w inside a bin; the interpolation error is
+// below 1e-5 everywhere and |z| reaches 6.3 (w = 2^-32). Deterministic for a key, independent of thread
+// and block size.
+class NormalTable {
+ public:
+  static const NormalTable& Get() {
+    static const NormalTable table;
+    return table;
+  }
+
+  float operator()(uint32_t bits) const {
+    const float w = static_cast<float>(static_cast<int32_t>(bits >> 1)) * 0x1p-31f + 0x1p-32f;
+    uint32_t w_bits;
+    std::memcpy(&w_bits, &w, sizeof w_bits);
+    const uint32_t bin = (w_bits >> 17) - (kLowestExponent << 6);  // exponent and 6 mantissa bits
+    const float z = intercept_[bin] + slope_[bin] * w;
+    // The sign from the low bit, without a branch (it would be mispredicted half the time).
+    uint32_t z_bits;
+    std::memcpy(&z_bits, &z, sizeof z_bits);
+    z_bits ^= bits << 31;
+    float signed_z;
+    std::memcpy(&signed_z, &z_bits, sizeof signed_z);
+    return signed_z;
+  }
+
+ private:
+  static constexpr uint32_t kLowestExponent = 127 - 32;  // biased float exponent of 2^-32
+  static constexpr int kBins = 32 * 64 + 1;              // the last bin is w = 1 alone (z = 0)
+
+  NormalTable() {
+    // |z| for a two-sided tail probability w: sqrt(2) erfc⁻¹(w), by bisection on erfc (exact to double).
+    auto inverse = [](double w) {
+      double lo = 0.0, hi = 10.0;  // erfc(10) = 2e-45
+      for (int it = 0; it < 100; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        (std::erfc(mid) > w ? lo : hi) = mid;
+      }
+      return std::sqrt(2.0) * 0.5 * (lo + hi);
+    };
+    auto bin_start = [](int bin) {
+      return std::ldexp(1.0 + (bin % 64) / 64.0, static_cast<int>(kLowestExponent) - 127 + bin / 64);
+    };
+    double w0 = bin_start(0), z0 = inverse(w0);
+    for (int bin = 0; bin + 1 < kBins; ++bin) {
+      const double w1 = bin_start(bin + 1), z1 = inverse(w1);
+      const double slope = (z1 - z0) / (w1 - w0);
+      slope_[bin] = static_cast<float>(slope);
+      intercept_[bin] = static_cast<float>(z0 - slope * w0);
+      w0 = w1;
+      z0 = z1;
+    }
+    slope_[kBins - 1] = 0.0f;
+    intercept_[kBins - 1] = 0.0f;
+  }
+
+  std::array<float, kBins> intercept_{}, slope_{};
+};
+
+uint64_t Mix64(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+
+// Deviates number first .. first + count - 1 of the stream `key` (first even) into out.
+void FillNormal(uint64_t key, uint64_t first, float* out, int count) {
+  const NormalTable& table = NormalTable::Get();
+  const uint64_t base = Mix64(key);
+  for (int i = 0; i < count; i += 2) {
+    const uint64_t h = Mix64(base + ((first + static_cast<uint64_t>(i)) >> 1) * 0x9e3779b97f4a7c15ULL);
+    out[i] = table(static_cast<uint32_t>(h));
+    if (i + 1 < count) out[i + 1] = table(static_cast<uint32_t>(h >> 32));
+  }
+}
+
+// The sensor model of scene.h on `scale` * `electrons` (CV_32FC3, BGR, mean electrons per pixel; the scale
+// is applied here to save a pass over the image), which is used as scratch space and left undefined. The
+// noise is added block by block (the inner loops have a fixed trip count and vectorise); sqrt needs no errno
+// there, hence -fno-math-errno on this file.
+cv::Mat SensorResponse(const SensorModel& s, cv::Mat& electrons, float scale, uint64_t seed,
+                       cv::Mat& raw_scratch) {
   ROTOSCAN_CHECK(electrons.type() == CV_32FC3 && electrons.isContinuous());
-  cv::RNG rng(seed);
   const int rows = electrons.rows, cols = electrons.cols;
   cv::Mat raw;  // electrons, 1 or 3 channels
   if (s.bayer) {
@@ -225,25 +313,38 @@ cv::Mat SensorResponse(const SensorModel& s, cv::Mat& electrons, uint64_t seed, 
   } else {
     raw = electrons;
   }
-  cv::Mat flat = raw.reshape(1, 1);  // one row of all samples (both are continuous)
-  const int n = flat.cols;
-  float* e = flat.ptr<float>();
-  if (s.noise) {
-    // Shot noise (Poisson as a Gaussian of variance = mean) plus read noise.
-    normal_scratch.create(1, n, CV_32FC1);
-    rng.fill(normal_scratch, cv::RNG::NORMAL, 0.0, 1.0);
-    const float* g = normal_scratch.ptr<float>();
-    const float read2 = static_cast<float>(s.read_noise_e * s.read_noise_e);
-    for (int i = 0; i < n; ++i) {
-      const float mean = e[i] > 0.0f ? e[i] : 0.0f;
-      e[i] = mean + std::sqrt(mean + read2) * g[i];
-    }
-  }
+  const int n = static_cast<int>(raw.total()) * raw.channels();  // both are continuous
+  float* e = raw.ptr<float>();
   // Saturation at the full well (and at the top code), gain, rounding, clipping at 0: convertTo rounds
   // to nearest and saturates, so clipping the electrons at min(full well, top code / gain) first is enough.
   const float k = static_cast<float>(s.DnPerElectron());
   const float ceiling = std::min(static_cast<float>(s.full_well_e), static_cast<float>(s.MaxDn()) / k);
-  for (int i = 0; i < n; ++i) e[i] = e[i] < ceiling ? e[i] : ceiling;
+  if (s.noise) {
+    // Shot noise (Poisson as a Gaussian of variance = mean) plus read noise, then the ceiling.
+    const float read2 = static_cast<float>(s.read_noise_e * s.read_noise_e);
+    constexpr int kBlock = 512;
+    alignas(32) float g[kBlock];
+    int i = 0;
+    for (; i + kBlock <= n; i += kBlock) {
+      FillNormal(seed, static_cast<uint64_t>(i), g, kBlock);
+      float* b = e + i;
+      for (int j = 0; j < kBlock; ++j) {
+        const float scaled = scale * b[j];
+        const float mean = scaled > 0.0f ? scaled : 0.0f;
+        const float v = mean + std::sqrt(mean + read2) * g[j];
+        b[j] = v < ceiling ? v : ceiling;
+      }
+    }
+    FillNormal(seed, static_cast<uint64_t>(i), g, n - i);
+    for (int j = 0; i + j < n; ++j) {
+      const float scaled = scale * e[i + j];
+      const float mean = scaled > 0.0f ? scaled : 0.0f;
+      const float v = mean + std::sqrt(mean + read2) * g[j];
+      e[i + j] = v < ceiling ? v : ceiling;
+    }
+  } else {
+    for (int i = 0; i < n; ++i) e[i] = std::min(scale * e[i], ceiling);
+  }
   const int depth = s.bit_depth > 8 ? CV_16U : CV_8U;
   cv::Mat dn;
   raw.convertTo(dn, depth, k);
@@ -269,7 +370,7 @@ cv::Mat SensorResponse(const SensorModel& s, cv::Mat& electrons, uint64_t seed, 
 // Scratch images of one thread, reused from step to step: allocating ~100 MB of fresh pages per step
 // (page faults and zeroing) cost more than the ray casting.
 struct Workspace {
-  cv::Mat ambient, lamp, laser[2], electrons, speckle, raw, normal;
+  cv::Mat ambient, lamp, laser[2], electrons, speckle, raw;
 };
 
 // Multiplies the laser image `line` by a speckle field: white Gaussian noise blurred to the speckle size,
@@ -299,8 +400,7 @@ void ApplySpeckle(const LaserModel& laser, uint64_t seed, cv::Mat& line, cv::Mat
   const int x0 = std::max(0, first - reach), x1 = std::min(line.cols, last + 1 + reach);
   const cv::Rect band(x0, 0, x1 - x0, line.rows);
   scratch.create(band.size(), CV_32FC1);
-  cv::RNG rng(seed);
-  rng.fill(scratch, cv::RNG::NORMAL, 0.0, 1.0);
+  FillNormal(seed, 0, scratch.ptr<float>(), static_cast<int>(scratch.total()));
   cv::GaussianBlur(scratch, scratch, cv::Size(0, 0), laser.speckle_size_px, laser.speckle_size_px,
                    cv::BORDER_REFLECT);
   cv::Scalar mean, stddev;
@@ -320,8 +420,8 @@ void ApplySpeckle(const LaserModel& laser, uint64_t seed, cv::Mat& line, cv::Mat
 
 cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
   ROTOSCAN_CHECK(electrons.type() == CV_32FC3);
-  cv::Mat scratch = electrons.clone(), raw, normal;
-  return SensorResponse(scene_.sensor, scratch, seed, raw, normal);
+  cv::Mat scratch = electrons.clone(), raw;
+  return SensorResponse(scene_.sensor, scratch, 1.0f, seed, raw);
 }
 
 RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const FrameMask& mask) const {
@@ -346,133 +446,163 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
   }
 
   thread_local Workspace ws;
-  auto zeroed = [&](cv::Mat& m, int type) -> cv::Mat& {
+  // Only the images the masked frames use are accumulated: ambient for the laser and off frames, lamp for
+  // the natural frame.
+  const bool want_ambient = mask[0] || mask[1] || mask[2], want_lamp = mask[3];
+  auto zeroed = [&](cv::Mat& m, int type, bool wanted) -> cv::Mat& {
     m.create(height, width, type);
-    m.setTo(cv::Scalar::all(0));
+    if (wanted) m.setTo(cv::Scalar::all(0));
     return m;
   };
-  cv::Mat& ambient = zeroed(ws.ambient, CV_32FC3);  // albedo * ambient, BGR
-  cv::Mat& lamp = zeroed(ws.lamp, CV_32FC3);        // albedo * (ambient + lamp), BGR
-  cv::Mat laser_img[2] = {zeroed(ws.laser[0], CV_32FC1), zeroed(ws.laser[1], CV_32FC1)};
+  cv::Mat& ambient = zeroed(ws.ambient, CV_32FC3, want_ambient);  // albedo * ambient, BGR
+  cv::Mat& lamp = zeroed(ws.lamp, CV_32FC3, want_lamp);           // albedo * (ambient + lamp), BGR
+  cv::Mat laser_img[2] = {zeroed(ws.laser[0], CV_32FC1, want_laser[0]),
+                          zeroed(ws.laser[1], CV_32FC1, want_laser[1])};
   const float weight = 1.0f / static_cast<float>(ss * ss);
+  const float ambient_weight = weight * static_cast<float>(sc.ambient);
+  const float diffuse_weight = weight * static_cast<float>(sc.diffuse);
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
   const Eigen::Vector3f origin = cam_centre.cast<float>();
   const Eigen::Vector3f light_f = light.cast<float>();
-  // Camera rays go to Embree in packets of 8 along a row of sub-samples (coherent, much faster than
-  // single rays); each hit is then shaded on its own.
-  constexpr int kPacket = 8;
-  for (int y = 0; y < height; ++y) {
-    cv::Vec3f* amb_row = ambient.ptr<cv::Vec3f>(y);
-    cv::Vec3f* lamp_row = lamp.ptr<cv::Vec3f>(y);
-    float* laser_row[2] = {laser_img[0].ptr<float>(y), laser_img[1].ptr<float>(y)};
-    auto shade = [&](int x, float px, float py, const Eigen::Vector3f& dir, float t,
-                     const Eigen::Vector3d& ng, unsigned geom_id, unsigned prim_id, float hit_u,
-                     float hit_v, bool lamp_blocked) {
+  // Per mesh: a uniform albedo needs no lookup per hit (Mesh::Albedo would return `color`).
+  std::vector<char> uniform(impl_->meshes.size());
+  for (std::size_t i = 0; i < uniform.size(); ++i) uniform[i] = impl_->meshes[i].UniformAlbedo();
+  // Camera rays go to Embree in packets of 8, tiles of 4 x 2 sub-samples (coherent, much faster than
+  // single rays, and fewer BVH nodes per packet than 8 x 1); each hit is then shaded on its own.
+  constexpr int kPacket = 8, kTileWidth = 4;
+  const int sample_cols = width * ss, sample_rows = height * ss;
+  for (int first_row = 0; first_row < sample_rows; first_row += kPacket / kTileWidth) {
+    auto shade = [&](int x, int y, float px, float py, const Eigen::Vector3f& dir, float t,
+                     const Eigen::Vector3f& ng, unsigned geom_id, unsigned prim_id, float hit_u, float hit_v,
+                     bool lamp_blocked) {
       const Mesh& mesh = impl_->meshes[geom_id];
-      const Eigen::Vector3d p = cam_centre + static_cast<double>(t) * dir.cast<double>();
-      Eigen::Vector3d n = ng.normalized();
-      if (n.dot(dir.cast<double>()) > 0) n = -n;  // towards the camera
-      Eigen::Vector3d footprint_x = Eigen::Vector3d::Zero(), footprint_y = Eigen::Vector3d::Zero();
-      if (mesh.pattern != internal::Pattern::kNone) {
-        // Ray differentials: where the rays one sub-sample right and down meet the hit's plane.
-        const float step = 1.0f / static_cast<float>(ss);
-        const Eigen::Vector3d dir_x = (rotation * impl_->RayAt(px + step, py)).cast<double>();
-        const Eigen::Vector3d dir_y = (rotation * impl_->RayAt(px, py + step)).cast<double>();
-        const double along = n.dot(p - cam_centre);
-        footprint_x = cam_centre + along / n.dot(dir_x) * dir_x - p;
-        footprint_y = cam_centre + along / n.dot(dir_y) * dir_y - p;
+      Eigen::Vector3f n = ng.normalized();
+      if (n.dot(dir) > 0) n = -n;  // towards the camera
+      // The hit point (double: the laser's Gaussian is evaluated at 0.01 mm scales 300 mm away), when used.
+      Eigen::Vector3d p = Eigen::Vector3d::Zero();
+      if (uniform[geom_id] == 0 || want_laser[0] || want_laser[1]) {
+        p = cam_centre + static_cast<double>(t) * dir.cast<double>();
       }
-      const Eigen::Vector3f albedo = mesh.Albedo(prim_id, hit_u, hit_v, p, footprint_x, footprint_y);
-      // The lamp: Lambertian, unless the scene blocks it (cast and self shadows).
-      const double lamp_cos = lamp_blocked ? 0.0 : std::max(0.0, n.dot(light));
-      const float lit = static_cast<float>(sc.ambient + sc.diffuse * lamp_cos);
-      for (int c = 0; c < 3; ++c) {
-        amb_row[x][2 - c] += weight * albedo[c] * static_cast<float>(sc.ambient);
-        lamp_row[x][2 - c] += weight * albedo[c] * lit;
+      Eigen::Vector3f albedo;
+      if (uniform[geom_id] != 0) {
+        albedo = mesh.color;
+      } else {
+        Eigen::Vector3d footprint_x = Eigen::Vector3d::Zero(), footprint_y = Eigen::Vector3d::Zero();
+        if (mesh.pattern != internal::Pattern::kNone) {
+          // Ray differentials: where the rays one sub-sample right and down meet the hit's plane.
+          const Eigen::Vector3d nd = n.cast<double>();
+          const float step = 1.0f / static_cast<float>(ss);
+          const Eigen::Vector3d dir_x = (rotation * impl_->RayAt(px + step, py)).cast<double>();
+          const Eigen::Vector3d dir_y = (rotation * impl_->RayAt(px, py + step)).cast<double>();
+          const double along = nd.dot(p - cam_centre);
+          footprint_x = cam_centre + along / nd.dot(dir_x) * dir_x - p;
+          footprint_y = cam_centre + along / nd.dot(dir_y) * dir_y - p;
+        }
+        albedo = mesh.Albedo(prim_id, hit_u, hit_v, p, footprint_x, footprint_y);
+      }
+      if (want_ambient) {
+        cv::Vec3f& amb = ambient.ptr<cv::Vec3f>(y)[x];
+        for (int c = 0; c < 3; ++c) amb[2 - c] += ambient_weight * albedo[c];
+      }
+      if (want_lamp) {
+        // The lamp: Lambertian, unless the scene blocks it (cast and self shadows).
+        const float lamp_cos = lamp_blocked ? 0.0f : std::max(0.0f, n.dot(light_f));
+        const float lit = ambient_weight + diffuse_weight * lamp_cos;
+        cv::Vec3f& lit_pixel = lamp.ptr<cv::Vec3f>(y)[x];
+        for (int c = 0; c < 3; ++c) lit_pixel[2 - c] += lit * albedo[c];
       }
       for (int k = 0; k < 2; ++k) {
         if (!want_laser[k]) continue;
         const LaserModel& laser = sc.laser[k];
         const double s = laser_normal[k].dot(p) + laser_offset[k];
         if (std::abs(s) > 6.0 * laser.sigma_mm) continue;
+        const Eigen::Vector3d nd = n.cast<double>();
         const Eigen::Vector3d to_laser = laser_origin[k] - p;
         const double range = to_laser.norm();
-        const double cos_incidence = n.dot(to_laser) / range;
+        const double cos_incidence = nd.dot(to_laser) / range;
         if (cos_incidence <= 0.0) continue;
         if (impl_->Occluded(p, laser_origin[k], 1e-2)) continue;  // shadowed from this laser
         const double irradiance = laser.power * std::exp(-0.5 * s * s / (laser.sigma_mm * laser.sigma_mm)) *
                                   cos_incidence * 300.0 / range;
-        laser_row[k][x] += weight * static_cast<float>(irradiance) * albedo[0];  // red reflectance
+        laser_img[k].ptr<float>(y)[x] +=
+            weight * static_cast<float>(irradiance) * albedo[0];  // red reflectance
       }
     };
-    for (int sy = 0; sy < ss; ++sy) {
-      const int samples = width * ss;
-      for (int first = 0; first < samples; first += kPacket) {
-        alignas(32) int valid[kPacket];
-        alignas(32) RTCRayHit8 packet;
-        Eigen::Vector3f dirs[kPacket];
-        float pxs[kPacket], pys[kPacket];
-        for (int l = 0; l < kPacket; ++l) {
-          const int i = first + l;
-          valid[l] = i < samples ? -1 : 0;
-          const int x = std::min(i, samples - 1) / ss, sx = std::min(i, samples - 1) % ss;
+    for (int first_col = 0; first_col < sample_cols; first_col += kTileWidth) {
+      alignas(32) int valid[kPacket];
+      alignas(32) RTCRayHit8 packet;
+      Eigen::Vector3f dirs[kPacket];
+      float pxs[kPacket], pys[kPacket];
+      int xs[kPacket], ys[kPacket];
+      for (int l = 0; l < kPacket; ++l) {
+        const int col = first_col + l % kTileWidth, row = first_row + l / kTileWidth;
+        valid[l] = col < sample_cols && row < sample_rows ? -1 : 0;
+        const int i = std::min(col, sample_cols - 1), j = std::min(row, sample_rows - 1);
+        xs[l] = ss == 1 ? i : i / ss;
+        ys[l] = ss == 1 ? j : j / ss;
+        if (ss == 1) {
+          // One ray per pixel: through its centre, a node of the ray grid.
+          pxs[l] = static_cast<float>(i);
+          pys[l] = static_cast<float>(j);
+          dirs[l] = rotation * impl_->RayAtCentre(i, j);
+        } else {
           // A regular grid of sub-samples: with the box-filtered patterns their footprints tile the pixel.
-          pxs[l] = x + (sx + 0.5f) / ss - 0.5f;
-          pys[l] = y + (sy + 0.5f) / ss - 0.5f;
+          pxs[l] = xs[l] + (i % ss + 0.5f) / ss - 0.5f;
+          pys[l] = ys[l] + (j % ss + 0.5f) / ss - 0.5f;
           dirs[l] = rotation * impl_->RayAt(pxs[l], pys[l]);
-          packet.ray.org_x[l] = origin.x();
-          packet.ray.org_y[l] = origin.y();
-          packet.ray.org_z[l] = origin.z();
-          packet.ray.dir_x[l] = dirs[l].x();
-          packet.ray.dir_y[l] = dirs[l].y();
-          packet.ray.dir_z[l] = dirs[l].z();
-          packet.ray.tnear[l] = 1.0f;
-          packet.ray.tfar[l] = std::numeric_limits<float>::infinity();
-          packet.ray.mask[l] = 0xFFFFFFFF;
-          packet.ray.time[l] = 0.0f;
-          packet.ray.flags[l] = 0;
-          packet.ray.id[l] = 0;
-          packet.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;
-          packet.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
         }
-        rtcIntersect8(valid, impl_->rtc_scene, &context, &packet);
-        // Shadow rays towards the lamp, as a packet too (parallel rays: coherent). Only the natural frame
-        // needs them.
-        alignas(32) int shadow_valid[kPacket] = {};
-        alignas(32) RTCRay8 shadow;
-        bool any_shadow_ray = false;
-        for (int l = 0; l < kPacket; ++l) {
-          shadow.tfar[l] = 0.0f;
-          if (!lamp_shadows || valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;
-          Eigen::Vector3f ng(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]);
-          if (ng.dot(dirs[l]) > 0) ng = -ng;
-          if (ng.dot(light_f) <= 0) continue;  // facing away from the lamp: unlit anyway
-          const Eigen::Vector3f p = origin + packet.ray.tfar[l] * dirs[l];
-          shadow.org_x[l] = p.x();
-          shadow.org_y[l] = p.y();
-          shadow.org_z[l] = p.z();
-          shadow.dir_x[l] = light_f.x();
-          shadow.dir_y[l] = light_f.y();
-          shadow.dir_z[l] = light_f.z();
-          shadow.tnear[l] = 1e-2f;
-          shadow.tfar[l] = kLampDistanceMm;
-          shadow.mask[l] = 0xFFFFFFFF;
-          shadow.time[l] = 0.0f;
-          shadow.flags[l] = 0;
-          shadow.id[l] = 0;
-          shadow_valid[l] = -1;
-          any_shadow_ray = true;
-        }
-        if (any_shadow_ray) rtcOccluded8(shadow_valid, impl_->rtc_scene, &context, &shadow);
-        for (int l = 0; l < kPacket; ++l) {
-          if (valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;  // black background
-          shade((first + l) / ss, pxs[l], pys[l], dirs[l], packet.ray.tfar[l],
-                Eigen::Vector3d(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]),
-                packet.hit.geomID[l], packet.hit.primID[l], packet.hit.u[l], packet.hit.v[l],
-                shadow_valid[l] != 0 && shadow.tfar[l] < 0.0f);
-        }
+        packet.ray.org_x[l] = origin.x();
+        packet.ray.org_y[l] = origin.y();
+        packet.ray.org_z[l] = origin.z();
+        packet.ray.dir_x[l] = dirs[l].x();
+        packet.ray.dir_y[l] = dirs[l].y();
+        packet.ray.dir_z[l] = dirs[l].z();
+        packet.ray.tnear[l] = 1.0f;
+        packet.ray.tfar[l] = std::numeric_limits<float>::infinity();
+        packet.ray.mask[l] = 0xFFFFFFFF;
+        packet.ray.time[l] = 0.0f;
+        packet.ray.flags[l] = 0;
+        packet.ray.id[l] = 0;
+        packet.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;
+        packet.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
+      }
+      rtcIntersect8(valid, impl_->rtc_scene, &context, &packet);
+      // Shadow rays towards the lamp, as a packet too (parallel rays: coherent). Only the natural frame
+      // needs them.
+      alignas(32) int shadow_valid[kPacket] = {};
+      alignas(32) RTCRay8 shadow;
+      bool any_shadow_ray = false;
+      for (int l = 0; l < kPacket; ++l) {
+        shadow.tfar[l] = 0.0f;
+        if (!lamp_shadows || valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;
+        Eigen::Vector3f ng(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]);
+        if (ng.dot(dirs[l]) > 0) ng = -ng;
+        if (ng.dot(light_f) <= 0) continue;  // facing away from the lamp: unlit anyway
+        const Eigen::Vector3f p = origin + packet.ray.tfar[l] * dirs[l];
+        shadow.org_x[l] = p.x();
+        shadow.org_y[l] = p.y();
+        shadow.org_z[l] = p.z();
+        shadow.dir_x[l] = light_f.x();
+        shadow.dir_y[l] = light_f.y();
+        shadow.dir_z[l] = light_f.z();
+        shadow.tnear[l] = 1e-2f;
+        shadow.tfar[l] = kLampDistanceMm;
+        shadow.mask[l] = 0xFFFFFFFF;
+        shadow.time[l] = 0.0f;
+        shadow.flags[l] = 0;
+        shadow.id[l] = 0;
+        shadow_valid[l] = -1;
+        any_shadow_ray = true;
+      }
+      if (any_shadow_ray) rtcOccluded8(shadow_valid, impl_->rtc_scene, &context, &shadow);
+      for (int l = 0; l < kPacket; ++l) {
+        if (valid[l] == 0 || packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;  // black background
+        shade(xs[l], ys[l], pxs[l], pys[l], dirs[l], packet.ray.tfar[l],
+              Eigen::Vector3f(packet.hit.Ng_x[l], packet.hit.Ng_y[l], packet.hit.Ng_z[l]),
+              packet.hit.geomID[l], packet.hit.primID[l], packet.hit.u[l], packet.hit.v[l],
+              shadow_valid[l] != 0 && shadow.tfar[l] < 0.0f);
       }
     }
   }
@@ -485,8 +615,16 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
   auto finish = [&](const cv::Mat& base, float scale, const cv::Mat* line, const float* response, int frame) {
     cv::Mat& electrons = ws.electrons;
     electrons.create(height, width, CV_32FC3);
+    float sensor_scale = 1.0f;  // what the sensor model still has to multiply by
     if (line == nullptr) {
-      base.convertTo(electrons, CV_32FC3, scale);
+      // The blur is linear: blurring the base and scaling in the sensor model saves a pass.
+      sensor_scale = scale;
+      if (sensor.blur_sigma_px > 0) {
+        cv::GaussianBlur(base, electrons, cv::Size(0, 0), sensor.blur_sigma_px, sensor.blur_sigma_px,
+                         cv::BORDER_REPLICATE);
+      } else {
+        base.copyTo(electrons);
+      }
     } else {
       const float r[3] = {scale * response[0], scale * response[1], scale * response[2]};
       for (int y = 0; y < height; ++y) {
@@ -499,19 +637,20 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
           e[3 * x + 2] = scale * a[3 * x + 2] + l[x] * r[2];
         }
       }
-    }
-    if (sensor.blur_sigma_px > 0) {
-      cv::GaussianBlur(electrons, electrons, cv::Size(0, 0), sensor.blur_sigma_px, sensor.blur_sigma_px,
-                       cv::BORDER_REPLICATE);
+      if (sensor.blur_sigma_px > 0) {
+        cv::GaussianBlur(electrons, electrons, cv::Size(0, 0), sensor.blur_sigma_px, sensor.blur_sigma_px,
+                         cv::BORDER_REPLICATE);
+      }
     }
     out.frames[frame] =
-        SensorResponse(sensor, electrons, seed ^ (0x51ed2701ULL * (frame + 1)), ws.raw, ws.normal);
+        SensorResponse(sensor, electrons, sensor_scale, seed ^ (0x51ed2701ULL * (frame + 1)), ws.raw);
   };
   for (int k = 0; k < 2; ++k) {
     if (!mask[k]) continue;
     const LaserModel& laser = sc.laser[k];
     cv::Mat& line = laser_img[k];
-    if (laser.speckle_contrast > 0) ApplySpeckle(laser, seed ^ (0xabcdef12345ULL * (k + 1)), line, ws.speckle);
+    if (laser.speckle_contrast > 0)
+      ApplySpeckle(laser, seed ^ (0xabcdef12345ULL * (k + 1)), line, ws.speckle);
     const float response[3] = {static_cast<float>(laser.response[2]), static_cast<float>(laser.response[1]),
                                static_cast<float>(laser.response[0])};  // BGR
     finish(ambient, laser_scale, &line, response, k);

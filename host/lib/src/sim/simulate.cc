@@ -184,6 +184,9 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
     renderers.push_back(std::move(renderer));
     if (kind != SimulateKind::kScan) {
       const Eigen::Isometry3d table_from_target = renderers[0]->TableFromObject(0);
+      // Where the table top is below the target's origin: what calibration needs to put the table
+      // frame's origin on the table top (bundle.h TargetInfo). Exact here; measured on a real rig.
+      header.target.origin_height_mm = table_from_target.translation().z();
       for (const Job& job : jobs) {
         const Eigen::Isometry3d cam_from_target =
             scene.rig.WorldFromCamAtAngle(job.angle).inverse() * table_from_target;

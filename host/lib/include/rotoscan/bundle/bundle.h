@@ -19,7 +19,8 @@
 //     "table_step_deg": 0.3,
 //     "device": { "name": "...", "serial": "...", "firmware_version": "..." },
 //     "target": { "kind": "none" | "calibration_object" | "checkerboard" | "table_checkerboard",
-//                 "cols": 9, "rows": 6, "square_mm": 10, "description": "..." },   (calibration only)
+//                 "cols": 9, "rows": 6, "square_mm": 10, "description": "...",
+//                 "origin_height_mm": 49 (optional) },                              (calibration only)
 //     "frames": [ { "file": "frames/s0000_left.png", "step": 0, "table_angle_deg": 0.0,
 //                   "laser": "left" | "right" | "off" | "natural", "trigger_seq": 0,
 //                   "device_time_us": 0, "exposure_us": 2000, "pose": -1 }, ... ]
@@ -41,6 +42,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -94,6 +96,12 @@ struct TargetInfo {
   int rows = 0;            // checkerboard inner corners down
   double square_mm = 0.0;  // board square, or grid pitch of the calibration object
   std::string description;
+  // Height of the target frame's origin above the table top, along the axis, for a target standing on
+  // the table (table_checkerboard, calibration_object); NaN when unknown. Calibration needs it to put the
+  // table frame's origin on the table top (DESIGN.md "Names and frames"): from the views alone the axis
+  // is known, but not where along it the table top is. The virtual scanner writes the exact value; on a
+  // real rig it is measured once (board margin below the first inner corner).
+  double origin_height_mm = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct FrameRecord {

@@ -107,8 +107,10 @@ struct RigEstimate {
 };
 
 // The paper's three steps with OpenCV intrinsics (see the file comment). `camera`: known intrinsics to use
-// instead of estimating them. Errors say what to capture: too few target views, a placement seen at too
-// few table positions, a laser never seen or seen on one target plane only.
+// instead of estimating them. Errors (kInvalidArgument) say what to capture: the target found in no view or
+// in too few, a view whose corners lie on one line, a placement seen at too few table positions, a laser
+// never seen or seen on one target plane only (its points on one line), the calibration object seen on one
+// face only (coplanar corners: no DLT).
 Result<RigEstimate> CalibrateThreeStep(const CalibrationData& data, const RigCalibrationOptions& options,
                                        const std::optional<geometry::CameraModel>& camera = std::nullopt);
 

@@ -60,11 +60,20 @@ struct CameraModel {
   // Removes distortion: the normalised coordinates (x/z, y/z) whose projection is `pixel`. Iterative
   // (fixed point, then Gauss-Newton polish); exact to ~1e-12 inside the image for realistic lenses.
   Eigen::Vector2d Undistort(const Eigen::Vector2d& pixel) const;
+  // The same from a starting point close to the answer (e.g. the neighbouring pixel's answer shifted by
+  // the pixel step): Gauss-Newton alone, usually one or two steps; falls back to Undistort(pixel) if it
+  // does not converge. For tables over the whole image (laser/triangulate.h).
+  Eigen::Vector2d Undistort(const Eigen::Vector2d& pixel, const Eigen::Vector2d& guess) const;
 
   // The ray through `pixel` as a direction in the camera frame with z = 1 (distortion removed).
   Eigen::Vector3d PixelToRay(const Eigen::Vector2d& pixel) const;
 
   bool IsInside(const Eigen::Vector2d& pixel, double margin = 0.0) const;
+
+ private:
+  // Gauss-Newton on distort(p) = target (normalised coordinates), at most `iterations` steps; true when
+  // the residual is below 1e-13.
+  bool PolishUndistorted(const Eigen::Vector2d& target, int iterations, Eigen::Vector2d* p) const;
 };
 
 }  // namespace rotoscan::geometry

@@ -121,11 +121,16 @@ class LineExtractor {
   Status ExtractFromChannel(const cv::Mat& on_channel, const cv::Mat& off_channel, Line* line);
 
  private:
+  // The row loop, on single-channel frames (channel 0) or on one channel of color frames.
+  Status ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line);
+
   ExtractOptions options_;
   std::vector<uint8_t> diff_;
-  std::vector<uint16_t> block_masks_;  // per 16 pixels of the row: bits of d >= threshold
+  std::vector<int> block_starts_;      // the row's 16-pixel blocks holding a pixel >= threshold: start
+  std::vector<uint16_t> block_masks_;  // and bits of d >= threshold
   std::vector<float> raw_columns_;     // along-line smoothing: the centres before smoothing
-  cv::Mat on_channel_, off_channel_, on_bgr_, off_bgr_;
+  std::vector<cv::Mat> on_planes_, off_planes_;  // a band of color frames, split into channels
+  cv::Mat on_bgr_, off_bgr_;                     // demosaiced Bayer frames
 };
 
 // The along-line smoothing of ExtractOptions (smooth_*), applied in place to points ordered by row; exposed
