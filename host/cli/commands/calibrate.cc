@@ -253,6 +253,7 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
                            {px[0], px[cols - 1], px[rows * cols - 1], px[(rows - 1) * cols]}});
         }
         view.placement = placement_base + key.first;
+        view.origin_height_mm = target.origin_height_mm;
         view.step = frame.step;
         view.table_angle_rad = frame.table_angle_rad;
         view.name = std::filesystem::path(directory).filename().string() + "/" + frame.file;
@@ -479,9 +480,14 @@ int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) 
       const Eigen::Vector3d& a = truth->axis_direction_in_cam;
       out << ", axis " << (off - a.dot(off) * a).norm() << " mm "
           << geometry::RadToDeg(std::acos(std::min(1.0, std::abs(estimate->axis_direction_in_cam.dot(a)))))
-          << " deg\n";
+          << " deg, table top " << std::abs(a.dot(off)) << " mm\n";
     }
     break;
+  }
+  if (!s.table_origin_on_table_top) {
+    out << "note: the bundles do not give the target's height above the table (bundle.json "
+           "target.origin_height_mm), so the table frame's origin is at the height of a target's origin, "
+           "not on the table top\n";
   }
   out << "wrote " << options.out << (options.report.empty() ? "" : " and " + options.report) << "\n";
   if (!s.passed) {

@@ -112,6 +112,12 @@ TEST(RenderedCalibrationTest, ThreePlacementsMeetTheTargetsAgainstTruth) {
   }
   EXPECT_LT(AxisDistanceMm(rig, truth), 0.05);
   EXPECT_LT(AxisAngleDeg(rig, truth), 0.05);
+  // The table frame's origin on the table top (the bundles carry the target's height above it): the
+  // along-axis offset from the true table top. Without the height it was the board's first inner corner,
+  // 49 mm up, and a cloud from this rig sat that far from the true mesh.
+  EXPECT_TRUE(s.table_origin_on_table_top);
+  const Eigen::Vector3d top_off = rig.axis_point_in_cam - truth.axis_point_in_cam;
+  EXPECT_LT(std::abs(truth.axis_direction_in_cam.dot(top_off)), 0.1);  // one placement's pose precision
   EXPECT_NEAR(rig.step_angle_rad, truth.step_angle_rad, 1e-5 * truth.step_angle_rad);
 
   // Regression (the demo's left laser, 0.048 mm plane residual against 0.011 mm for the right): at one table

@@ -4,6 +4,8 @@
 #include <cstdlib>
 #include <random>
 
+#include <limits>
+
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -34,6 +36,7 @@ constexpr double kBoardHeightMm = kSquareMm * (kBoardRows - 1);
 struct Synthetic {
   RigEstimate truth;
   CalibrationData data;
+  std::vector<double> origin_height_mm;  // per placement: the target origin's height above the table top
 };
 
 Synthetic MakeSynthetic(bool distortion, double noise_px, unsigned seed, int steps_each_side = 3) {
@@ -77,6 +80,7 @@ Synthetic MakeSynthetic(bool distortion, double noise_px, unsigned seed, int ste
     Eigen::Isometry3d table_from_target = Eigen::Isometry3d::Identity();
     table_from_target.linear() = turn_lean * r;
     table_from_target.translation() = turn_lean * Eigen::Vector3d(-kBoardWidthMm / 2, 0, kBoardHeightMm + 15);
+    s.origin_height_mm.push_back(table_from_target.translation().z());
     Eigen::Isometry3d cam_from_target = cam_from_table * table_from_target;
     // The board's z axis must point away from the camera (OpenCV's convention for a board facing it).
     EXPECT_GT(cam_from_target.linear().col(2).z(), 0.0);
@@ -172,6 +176,41 @@ TEST(RigCalibrationTest, ThreeStepOnExactDataIsExact) {
   EXPECT_LT(AxisDistanceMm(estimate->rig, s.truth.rig), 1e-3);
   EXPECT_LT(AxisAngleDeg(estimate->rig, s.truth.rig), 1e-4);
   EXPECT_NEAR(estimate->rig.step_angle_rad, s.truth.rig.step_angle_rad, 1e-8);
+}
+
+// The views fix the axis but not where the table top is along it: with the targets' heights above the
+// table the origin lands on the true table top, from any placement; without, it stays at a target
+// origin's height and the summary says so.
+TEST(RigCalibrationTest, TableOriginIsOnTheTableTopGivenTheTargetHeight) {
+  Synthetic s = MakeSynthetic(true, 0.05, 4);
+  const Eigen::Vector3d& a = s.truth.rig.axis_direction_in_cam;
+  auto along_axis_mm = [&](const geometry::Rig& rig) {
+    return a.dot(rig.axis_point_in_cam - s.truth.rig.axis_point_in_cam);
+  };
+  auto without = CalibrateThreeStep(s.data, {});
+  ASSERT_TRUE(without.ok()) << without.status().ToString();
+  EXPECT_GT(std::abs(along_axis_mm(without->rig)), 50.0);  // the first placement's board origin, up high
+  auto refined_without = RefineRig(s.data, *without, {});
+  ASSERT_TRUE(refined_without.ok());
+  EXPECT_FALSE(refined_without->summary.table_origin_on_table_top);
+
+  for (int only : {-1, 2}) {  // every view carries its height; only the third placement's views do
+    for (TargetView& view : s.data.target_views) {
+      view.origin_height_mm = (only < 0 || view.placement == only)
+                                  ? s.origin_height_mm[static_cast<size_t>(view.placement)]
+                                  : std::numeric_limits<double>::quiet_NaN();
+    }
+    auto three_step = CalibrateThreeStep(s.data, {});
+    ASSERT_TRUE(three_step.ok()) << three_step.status().ToString();
+    EXPECT_LT(std::abs(along_axis_mm(three_step->rig)), 0.1) << only;
+    auto joint = RefineRig(s.data, *three_step, {});
+    ASSERT_TRUE(joint.ok()) << joint.status().ToString();
+    EXPECT_TRUE(joint->summary.table_origin_on_table_top);
+    // One placement's pose fixes the height: its precision, ~0.05 mm at 0.05 px noise and 7 views.
+    EXPECT_LT(std::abs(along_axis_mm(joint->estimate.rig)), 0.1) << only;
+    // The rest of the rig does not depend on where the origin is.
+    EXPECT_LT(AxisDistanceMm(joint->estimate.rig, refined_without->estimate.rig), 1e-6);
+  }
 }
 
 TEST(RigCalibrationTest, JointRefinementMeetsTheAccuracyTargets) {

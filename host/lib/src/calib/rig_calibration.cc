@@ -227,6 +227,21 @@ Status RigCalibrationOptions::Check() const {
   return Status::Ok();
 }
 
+bool PlaceTableOrigin(const CalibrationData& data, RigEstimate* estimate) {
+  ROTOSCAN_CHECK(estimate != nullptr);
+  for (const TargetView& view : data.target_views) {
+    if (!std::isfinite(view.origin_height_mm)) continue;
+    if (view.placement < 0 || view.placement >= static_cast<int>(estimate->cam_from_target0.size())) continue;
+    geometry::Rig& rig = estimate->rig;
+    const Eigen::Vector3d a = rig.axis_direction_in_cam.normalized();
+    const Eigen::Vector3d origin = estimate->cam_from_target0[static_cast<size_t>(view.placement)].translation();
+    const Eigen::Vector3d foot = rig.axis_point_in_cam + a.dot(origin - rig.axis_point_in_cam) * a;
+    rig.axis_point_in_cam = foot - view.origin_height_mm * a;
+    return true;
+  }
+  return false;
+}
+
 Result<RigEstimate> CalibrateThreeStep(const CalibrationData& data, const RigCalibrationOptions& options,
                                        const std::optional<geometry::CameraModel>& camera) {
   ROTOSCAN_RETURN_IF_ERROR(CheckData(data, options));
@@ -414,6 +429,7 @@ Result<RigEstimate> CalibrateThreeStep(const CalibrationData& data, const RigCal
     estimate.rig.laser_plane[l] = fit->plane.Canonical();
   }
   ROTOSCAN_RETURN_IF_ERROR(estimate.rig.Validate().WithContext("three-step calibration"));
+  PlaceTableOrigin(data, &estimate);
   return estimate;
 }
 
@@ -673,6 +689,7 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
       s.passed = false;
     }
   }
+  out.summary.table_origin_on_table_top = PlaceTableOrigin(data, &out.estimate);
   return out;
 }
 
@@ -703,6 +720,7 @@ Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibrat
       fs << "laser_left_rms_mm" << s.laser_rms_mm[0] << "laser_right_rms_mm" << s.laser_rms_mm[1];
       fs << "laser_left_points" << s.laser_points[0] << "laser_right_points" << s.laser_points[1];
       fs << "axis_fit_rms_mm" << s.axis_fit_rms_mm << "angle_scale" << s.angle_scale;
+      fs << "table_origin_on_table_top" << static_cast<int>(s.table_origin_on_table_top);
       fs << "solver_termination" << s.termination << "solver_iterations" << s.iterations;
       const StdDevs& d = s.std_devs;
       fs << "std_valid" << (d.valid ? 1 : 0);
@@ -737,6 +755,7 @@ std::string SummaryToJson(const RigCalibrationSummary& s) {
                 {"right", {{"rms_mm", s.laser_rms_mm[1]}, {"points", s.laser_points[1]}}}};
   j["axis_fit_rms_mm"] = s.axis_fit_rms_mm;
   j["angle_scale"] = s.angle_scale;
+  j["table_origin_on_table_top"] = s.table_origin_on_table_top;
   j["target_views"] = s.target_views;
   j["placements"] = s.placements;
   const StdDevs& d = s.std_devs;

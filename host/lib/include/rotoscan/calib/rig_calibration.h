@@ -28,6 +28,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -48,6 +49,9 @@ struct TargetView {
   std::vector<Eigen::Vector3d> corners_in_target;  // mm, target frame
   std::vector<Eigen::Vector2d> corner_pixels;      // same order
   std::string name;                                // for messages and the report
+  // Height of the target frame's origin above the table top (bundle.h TargetInfo::origin_height_mm) for
+  // a target standing on the table; NaN when unknown or not on the table (a hand-held board).
+  double origin_height_mm = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct LaserView {
@@ -145,12 +149,22 @@ struct RigCalibrationSummary {
   StdDevs std_devs;
   bool passed = false;
   std::vector<std::string> failures;  // why it did not pass, each saying what to do
+  // Whether the table frame's origin is on the table top (PlaceTableOrigin) or, with no target height
+  // known, at a target origin's height along the axis.
+  bool table_origin_on_table_top = false;
 };
 
 struct RigCalibration {
   RigEstimate estimate;
   RigCalibrationSummary summary;
 };
+
+// Puts the table frame's origin on the table top (DESIGN.md "Names and frames"): the views fix the axis
+// but not where along it the table top is, so the origin is the foot on the axis of the first placement's
+// target origin (at table angle 0), lowered by that view's origin_height_mm. True when a view had a
+// height; false (the rig unchanged: its origin stays at a target origin's height) otherwise. Both
+// CalibrateThreeStep and RefineRig call it; the along-axis position is a gauge of the joint solve.
+bool PlaceTableOrigin(const CalibrationData& data, RigEstimate* estimate);
 
 // The joint refinement from `initial` (usually CalibrateThreeStep's). kNotConverged when Ceres fails.
 Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate& initial,
