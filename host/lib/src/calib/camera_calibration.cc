@@ -1,5 +1,7 @@
 #include "rotoscan/calib/camera_calibration.h"
 
+#include "opencv_calibration.h"
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -16,26 +18,6 @@
 #include "rotoscan/core/logging.h"
 
 namespace rotoscan::calib {
-namespace {
-
-bool IsImageFile(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" || ext == ".tif" || ext == ".tiff";
-}
-
-Eigen::Isometry3d PoseFromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec) {
-  cv::Mat r;
-  cv::Rodrigues(rvec, r);
-  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) pose.linear()(i, j) = r.at<double>(i, j);
-    pose.translation()(i) = tvec.at<double>(i);
-  }
-  return pose;
-}
-
-}  // namespace
 
 Status CheckerboardPattern::Check() const {
   if (cols < 3 || rows < 3) {
@@ -120,54 +102,12 @@ Result<CameraCalibration> CalibrateCamera(const std::vector<std::vector<Eigen::V
         " images: need >= " + std::to_string(options.min_views) +
         " (capture the whole board at different tilts and positions across the image)");
   }
-  const std::vector<Eigen::Vector3d> board = options.pattern.CornersInTarget();
-  std::vector<std::vector<cv::Point3f>> object_points(views);
-  std::vector<std::vector<cv::Point2f>> image_points(views);
-  for (int v = 0; v < views; ++v) {
-    ROTOSCAN_CHECK_EQ(corner_pixels[v].size(), board.size());
-    for (std::size_t i = 0; i < board.size(); ++i) {
-      object_points[v].emplace_back(static_cast<float>(board[i].x()), static_cast<float>(board[i].y()), 0.0f);
-      image_points[v].emplace_back(static_cast<float>(corner_pixels[v][i].x()),
-                                   static_cast<float>(corner_pixels[v][i].y()));
-    }
-  }
-  int flags = 0;
-  if (options.fix_aspect_ratio) flags |= cv::CALIB_FIX_ASPECT_RATIO;
-  if (options.zero_tangential) flags |= cv::CALIB_ZERO_TANGENT_DIST;
-  cv::Mat k = cv::Mat::eye(3, 3, CV_64F);
-  cv::Mat dist = cv::Mat::zeros(5, 1, CV_64F);
-  std::vector<cv::Mat> rvecs, tvecs;
-  cv::Mat std_intrinsics, std_extrinsics, per_view;
-  double rms = 0.0;
-  try {
-    rms = cv::calibrateCamera(object_points, image_points, cv::Size(image_width, image_height), k, dist,
-                              rvecs, tvecs, std_intrinsics, std_extrinsics, per_view, flags,
-                              cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
-  } catch (const cv::Exception& e) {
-    return NotConvergedError("camera calibration failed: " + e.msg);
-  }
-  CameraCalibration out;
-  out.camera.width = image_width;
-  out.camera.height = image_height;
-  out.camera.fx = k.at<double>(0, 0);
-  out.camera.fy = k.at<double>(1, 1);
-  out.camera.cx = k.at<double>(0, 2);
-  out.camera.cy = k.at<double>(1, 2);
-  for (int i = 0; i < 5; ++i) out.camera.distortion[i] = dist.at<double>(i);
-  if (!out.camera.Validate().ok() || !std::isfinite(rms)) {
-    return NotConvergedError("camera calibration gave an invalid camera: " +
-                             out.camera.Validate().ToString());
-  }
-  out.rms_px = rms;
-  out.views = view_names;
-  out.corner_pixels = corner_pixels;
-  for (int v = 0; v < views; ++v) {
-    out.per_view_rms_px.push_back(per_view.at<double>(v));
-    out.cam_from_target.push_back(PoseFromRvecTvec(rvecs[v], tvecs[v]));
-  }
-  for (int i = 0; i < 4; ++i) out.intrinsics_std[i] = std_intrinsics.at<double>(i);
-  for (int i = 0; i < 5; ++i) out.distortion_std[i] = std_intrinsics.at<double>(4 + i);
-  return out;
+  for (const auto& pixels : corner_pixels)
+    ROTOSCAN_CHECK_EQ(pixels.size(), options.pattern.CornersInTarget().size());
+  const std::vector<std::vector<Eigen::Vector3d>> corners_in_target(corner_pixels.size(),
+                                                                    options.pattern.CornersInTarget());
+  return internal::CalibrateCorrespondences(corners_in_target, corner_pixels, view_names, image_width,
+                                            image_height, options.fix_aspect_ratio, options.zero_tangential);
 }
 
 Result<CameraCalibration> CalibrateCameraFromDirectory(const std::filesystem::path& directory,
@@ -180,7 +120,7 @@ Result<CameraCalibration> CalibrateCameraFromDirectory(const std::filesystem::pa
   }
   std::vector<std::filesystem::path> files;
   for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
-    if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
+    if (entry.is_regular_file() && internal::IsImageFile(entry.path())) files.push_back(entry.path());
   }
   if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
   std::sort(files.begin(), files.end());

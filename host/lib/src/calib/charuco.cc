@@ -12,6 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "opencv_calibration.h"
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/logging.h"
 
@@ -72,22 +73,6 @@ cv::Ptr<cv::aruco::CharucoBoard> OpenCvBoard(const CharucoBoard& board) {
   return cv::aruco::CharucoBoard::create(board.squares_x, board.squares_y,
                                          static_cast<float>(board.square_mm),
                                          static_cast<float>(board.marker_mm), Dictionary(board));
-}
-
-bool IsImageFile(const std::filesystem::path& path) {
-  const std::string ext = Upper(path.extension().string());
-  return ext == ".PNG" || ext == ".JPG" || ext == ".JPEG" || ext == ".BMP" || ext == ".TIF" || ext == ".TIFF";
-}
-
-Eigen::Isometry3d PoseFromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec) {
-  cv::Mat r;
-  cv::Rodrigues(rvec, r);
-  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) pose.linear()(i, j) = r.at<double>(i, j);
-    pose.translation()(i) = tvec.at<double>(i);
-  }
-  return pose;
 }
 
 bool NearInteger(double x) {
@@ -274,56 +259,14 @@ Result<CameraCalibration> CalibrateCameraCharuco(const std::vector<CharucoDetect
                                 " images: need >= " + std::to_string(options.min_views) +
                                 " (capture the board at different tilts and positions across the image)");
   }
-  std::vector<std::vector<cv::Point3f>> object_points(count);
-  std::vector<std::vector<cv::Point2f>> image_points(count);
-  for (int v = 0; v < count; ++v) {
-    const CharucoDetection& d = views[v];
-    ROTOSCAN_CHECK(d.pixels.size() == d.corners_in_target.size() && d.pixels.size() >= 4)
-        << "view " << v << ": " << d.pixels.size() << " pixels, " << d.corners_in_target.size() << " corners";
-    for (std::size_t i = 0; i < d.pixels.size(); ++i) {
-      const Eigen::Vector3d& p = d.corners_in_target[i];
-      object_points[v].emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()),
-                                    static_cast<float>(p.z()));
-      image_points[v].emplace_back(static_cast<float>(d.pixels[i].x()), static_cast<float>(d.pixels[i].y()));
-    }
+  std::vector<std::vector<Eigen::Vector3d>> corners_in_target;
+  std::vector<std::vector<Eigen::Vector2d>> corner_pixels;
+  for (const CharucoDetection& d : views) {
+    corners_in_target.push_back(d.corners_in_target);
+    corner_pixels.push_back(d.pixels);
   }
-  int flags = 0;
-  if (options.fix_aspect_ratio) flags |= cv::CALIB_FIX_ASPECT_RATIO;
-  if (options.zero_tangential) flags |= cv::CALIB_ZERO_TANGENT_DIST;
-  cv::Mat k = cv::Mat::eye(3, 3, CV_64F);
-  cv::Mat dist = cv::Mat::zeros(5, 1, CV_64F);
-  std::vector<cv::Mat> rvecs, tvecs;
-  cv::Mat std_intrinsics, std_extrinsics, per_view;
-  double rms = 0.0;
-  try {
-    rms = cv::calibrateCamera(object_points, image_points, cv::Size(image_width, image_height), k, dist,
-                              rvecs, tvecs, std_intrinsics, std_extrinsics, per_view, flags,
-                              cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
-  } catch (const cv::Exception& e) {
-    return NotConvergedError("camera calibration failed: " + e.msg);
-  }
-  CameraCalibration out;
-  out.camera.width = image_width;
-  out.camera.height = image_height;
-  out.camera.fx = k.at<double>(0, 0);
-  out.camera.fy = k.at<double>(1, 1);
-  out.camera.cx = k.at<double>(0, 2);
-  out.camera.cy = k.at<double>(1, 2);
-  for (int i = 0; i < 5; ++i) out.camera.distortion[i] = dist.at<double>(i);
-  if (!out.camera.Validate().ok() || !std::isfinite(rms)) {
-    return NotConvergedError("camera calibration gave an invalid camera: " +
-                             out.camera.Validate().ToString());
-  }
-  out.rms_px = rms;
-  out.views = view_names;
-  for (int v = 0; v < count; ++v) {
-    out.corner_pixels.push_back(views[v].pixels);
-    out.per_view_rms_px.push_back(per_view.at<double>(v));
-    out.cam_from_target.push_back(PoseFromRvecTvec(rvecs[v], tvecs[v]));
-  }
-  for (int i = 0; i < 4; ++i) out.intrinsics_std[i] = std_intrinsics.at<double>(i);
-  for (int i = 0; i < 5; ++i) out.distortion_std[i] = std_intrinsics.at<double>(4 + i);
-  return out;
+  return internal::CalibrateCorrespondences(corners_in_target, corner_pixels, view_names, image_width,
+                                            image_height, options.fix_aspect_ratio, options.zero_tangential);
 }
 
 Result<CameraCalibration> CalibrateCameraFromCharucoDirectory(const std::filesystem::path& directory,
@@ -337,7 +280,7 @@ Result<CameraCalibration> CalibrateCameraFromCharucoDirectory(const std::filesys
   }
   std::vector<std::filesystem::path> files;
   for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
-    if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
+    if (entry.is_regular_file() && internal::IsImageFile(entry.path())) files.push_back(entry.path());
   }
   if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
   std::sort(files.begin(), files.end());

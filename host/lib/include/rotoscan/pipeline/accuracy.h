@@ -46,14 +46,14 @@ Result<LineAccuracy> MeasureLineAccuracy(const std::filesystem::path& bundle_dir
 
 // The paper's Table 1 test: the cloud of a plane against the true plane. The true plane is fitted to the
 // truth/lines points of object 1 (exact points of the rendered plane); the cloud points within
-// `max_distance_mm` of it (the plane, not the table) give the RMS distance. Both are compared in the camera
-// frame at table angle 0, the truth brought there by truth/rig.yaml and the cloud by `rig` (so that a
-// calibrated rig is not charged for its table origin along the axis, a gauge of the calibration).
+// `max_distance_mm` of it (the plane, not the table) give the RMS distance. Both are compared in the table
+// frame at angle 0, where the cloud is: a calibrated rig has its origin on the table top too (calibration
+// bundles carry the target's height above it, calib PlaceTableOrigin).
 struct PlaneAccuracy {
   size_t points = 0;           // cloud points used
   double rms_mm = 0;           // RMS distance to the true plane
   double mean_mm = 0;          // mean signed distance (bias)
-  geometry::Plane true_plane;  // camera frame at table angle 0
+  geometry::Plane true_plane;  // table frame at angle 0
 };
 Result<PlaneAccuracy> MeasurePlaneAccuracy(const std::filesystem::path& bundle_dir, const geometry::Rig& rig,
                                            const ProcessOptions& options, double max_distance_mm = 2.0);
