@@ -16,7 +16,7 @@
 //
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
 // 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows.
-// Run: build-e/host/bench/laser/laser_bench --benchmark_counters_tabular=true
+// Run: build/host/bench/laser/laser_bench --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 #include <emmintrin.h>
 

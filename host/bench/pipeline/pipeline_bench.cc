@@ -8,7 +8,7 @@
 //                                (laser/triangulate.h), paid once per process, not per step
 //
 // Items are table steps. The bundle is rendered once per run into a temporary folder (a few seconds).
-// Run: build-a/host/bench/pipeline/pipeline_bench --benchmark_counters_tabular=true
+// Run: build/host/bench/pipeline/pipeline_bench --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
