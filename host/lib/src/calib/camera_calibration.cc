@@ -114,68 +114,29 @@ Result<CameraCalibration> CalibrateCameraFromDirectory(const std::filesystem::pa
                                                        const CameraCalibrationOptions& options,
                                                        Progress* progress) {
   ROTOSCAN_RETURN_IF_ERROR(options.Check());
-  std::error_code ec;
-  if (!std::filesystem::is_directory(directory, ec)) {
-    return NotFoundError("image directory " + directory.string() + " does not exist");
-  }
-  std::vector<std::filesystem::path> files;
-  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
-    if (entry.is_regular_file() && internal::IsImageFile(entry.path())) files.push_back(entry.path());
-  }
-  if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
-  std::sort(files.begin(), files.end());
-  if (files.empty()) {
-    return NotFoundError("no images (png, jpg, bmp, tif) in " + directory.string() + ": capture at least " +
-                         std::to_string(options.min_views) + " views of the checkerboard");
-  }
-  ProgressScope scope(progress, "checkerboard", files.size());
   std::vector<std::vector<Eigen::Vector2d>> corners;
   std::vector<std::string> names;
-  std::vector<std::string> rejected;
-  int width = 0, height = 0, readable = 0;
-  for (const auto& file : files) {
-    if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
-    scope.Advance();
-    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
-    const std::string name = file.filename().string();
-    if (image.empty()) {
-      rejected.push_back(name + ": unreadable image");
-      ROTOSCAN_LOG(kWarning) << name << ": unreadable image, skipped";
-      continue;
-    }
-    ++readable;
-    if (width == 0) {
-      width = image.cols;
-      height = image.rows;
-    } else if (image.cols != width || image.rows != height) {
-      return InvalidArgumentError(name + " is " + std::to_string(image.cols) + "x" +
-                                  std::to_string(image.rows) + " but the first image is " +
-                                  std::to_string(width) + "x" + std::to_string(height) +
-                                  ": all views must come from the same camera mode");
-    }
-    Result<std::vector<Eigen::Vector2d>> found = DetectCheckerboard(image, options.pattern);
-    if (!found.ok()) {
-      rejected.push_back(name + ": " + found.status().message());
-      ROTOSCAN_LOG(kInfo) << name << ": " << found.status().message();
-      continue;
-    }
-    corners.push_back(std::move(found).value());
-    names.push_back(name);
-  }
-  if (readable == 0) {
-    return CorruptDataError("none of the " + std::to_string(files.size()) + " image files in " +
-                            directory.string() + " could be read");
-  }
+  ROTOSCAN_ASSIGN_OR_RETURN(
+      const internal::ImageFolder folder,
+      internal::ReadImageFolder(directory, "checkerboard", options.min_views, "checkerboard", progress,
+                                [&](const cv::Mat& gray, const std::string& name) -> Status {
+                                  Result<std::vector<Eigen::Vector2d>> found =
+                                      DetectCheckerboard(gray, options.pattern);
+                                  if (!found.ok()) return found.status();
+                                  corners.push_back(std::move(found).value());
+                                  names.push_back(name);
+                                  return Status::Ok();
+                                }));
   if (static_cast<int>(corners.size()) < options.min_views) {
     return InvalidArgumentError(
-        "target found in only " + std::to_string(corners.size()) + " of " + std::to_string(files.size()) +
+        "target found in only " + std::to_string(corners.size()) + " of " + std::to_string(folder.files) +
         " images in " + directory.string() + ": need >= " + std::to_string(options.min_views) +
         " (check --pattern " + std::to_string(options.pattern.cols) + "x" +
         std::to_string(options.pattern.rows) +
         " counts inner corners, and capture the whole board, sharp, at different tilts)");
   }
-  Result<CameraCalibration> result = CalibrateCamera(corners, names, width, height, options);
-  if (result.ok()) result->rejected = rejected;
+  Result<CameraCalibration> result = CalibrateCamera(corners, names, folder.width, folder.height, options);
+  if (result.ok()) result->rejected = folder.rejected;
   return result;
 }
 

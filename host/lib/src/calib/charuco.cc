@@ -274,73 +274,36 @@ Result<CameraCalibration> CalibrateCameraFromCharucoDirectory(const std::filesys
                                                               Progress* progress) {
   ROTOSCAN_RETURN_IF_ERROR(options.Check());
   const std::string board = "ChArUco board " + options.board.ToString();
-  std::error_code ec;
-  if (!std::filesystem::is_directory(directory, ec)) {
-    return NotFoundError("image directory " + directory.string() + " does not exist");
-  }
-  std::vector<std::filesystem::path> files;
-  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
-    if (entry.is_regular_file() && internal::IsImageFile(entry.path())) files.push_back(entry.path());
-  }
-  if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
-  std::sort(files.begin(), files.end());
-  if (files.empty()) {
-    return NotFoundError("no images (png, jpg, bmp, tif) in " + directory.string() + ": capture at least " +
-                         std::to_string(options.min_views) + " views of the " + board);
-  }
-  ProgressScope scope(progress, "charuco", files.size());
   std::vector<CharucoDetection> views;
-  std::vector<std::string> names, rejected;
-  int width = 0, height = 0, readable = 0;
-  for (const auto& file : files) {
-    if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
-    scope.Advance();
-    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
-    const std::string name = file.filename().string();
-    if (image.empty()) {
-      rejected.push_back(name + ": unreadable image");
-      ROTOSCAN_LOG(kWarning) << name << ": unreadable image, skipped";
-      continue;
-    }
-    ++readable;
-    if (width == 0) {
-      width = image.cols;
-      height = image.rows;
-    } else if (image.cols != width || image.rows != height) {
-      return InvalidArgumentError(name + " is " + std::to_string(image.cols) + "x" +
-                                  std::to_string(image.rows) + " but the first image is " +
-                                  std::to_string(width) + "x" + std::to_string(height) +
-                                  ": all views must come from the same camera mode");
-    }
-    Result<CharucoDetection> found = DetectCharuco(image, options.board, options.min_corners);
-    if (!found.ok()) {
-      rejected.push_back(name + ": " + found.status().message());
-      ROTOSCAN_LOG(kInfo) << name << ": " << found.status().message();
-      continue;
-    }
-    views.push_back(std::move(found).value());
-    names.push_back(name);
-  }
-  if (readable == 0) {
-    return CorruptDataError("none of the " + std::to_string(files.size()) + " image files in " +
-                            directory.string() + " could be read");
-  }
+  std::vector<std::string> names;
+  ROTOSCAN_ASSIGN_OR_RETURN(
+      const internal::ImageFolder folder,
+      internal::ReadImageFolder(directory, board, options.min_views, "charuco", progress,
+                                [&](const cv::Mat& gray, const std::string& name) -> Status {
+                                  Result<CharucoDetection> found =
+                                      DetectCharuco(gray, options.board, options.min_corners);
+                                  if (!found.ok()) return found.status();
+                                  views.push_back(std::move(found).value());
+                                  names.push_back(name);
+                                  return Status::Ok();
+                                }));
   const std::string advice =
       " (check that --charuco counts squares, not inner corners, that --dictionary "
       "names the printed board's dictionary, and capture the board sharp, its "
       "markers at least ~20 px wide, at different tilts across the image)";
   if (views.empty()) {
-    return NotFoundError(board + " not found in any of the " + std::to_string(readable) + " images in " +
-                         directory.string() + ": capture at least " + std::to_string(options.min_views) +
-                         " views of it" + advice);
+    return NotFoundError(board + " not found in any of the " + std::to_string(folder.readable) +
+                         " images in " + directory.string() + ": capture at least " +
+                         std::to_string(options.min_views) + " views of it" + advice);
   }
   if (static_cast<int>(views.size()) < options.min_views) {
     return InvalidArgumentError(board + " found in only " + std::to_string(views.size()) + " of " +
-                                std::to_string(files.size()) + " images in " + directory.string() +
+                                std::to_string(folder.files) + " images in " + directory.string() +
                                 ": need >= " + std::to_string(options.min_views) + advice);
   }
-  Result<CameraCalibration> result = CalibrateCameraCharuco(views, names, width, height, options);
-  if (result.ok()) result->rejected = rejected;
+  Result<CameraCalibration> result =
+      CalibrateCameraCharuco(views, names, folder.width, folder.height, options);
+  if (result.ok()) result->rejected = folder.rejected;
   return result;
 }
 

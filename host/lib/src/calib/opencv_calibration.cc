@@ -5,8 +5,10 @@
 #include <cmath>
 
 #include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "rotoscan/core/check.h"
+#include "rotoscan/core/logging.h"
 
 namespace rotoscan::calib::internal {
 
@@ -88,6 +90,60 @@ Result<CameraCalibration> CalibrateCorrespondences(
   for (int i = 0; i < 4; ++i) out.intrinsics_std[static_cast<size_t>(i)] = std_intrinsics.at<double>(i);
   for (int i = 0; i < 5; ++i) out.distortion_std[static_cast<size_t>(i)] = std_intrinsics.at<double>(4 + i);
   return out;
+}
+
+Result<ImageFolder> ReadImageFolder(
+    const std::filesystem::path& directory, const std::string& target, int min_views,
+    const std::string& progress_label, Progress* progress,
+    const std::function<Status(const cv::Mat& gray, const std::string& name)>& detect) {
+  std::error_code ec;
+  if (!std::filesystem::is_directory(directory, ec)) {
+    return NotFoundError("image directory " + directory.string() + " does not exist");
+  }
+  std::vector<std::filesystem::path> files;
+  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
+    if (entry.is_regular_file() && IsImageFile(entry.path())) files.push_back(entry.path());
+  }
+  if (ec) return IoError("cannot list " + directory.string() + ": " + ec.message());
+  std::sort(files.begin(), files.end());
+  if (files.empty()) {
+    return NotFoundError("no images (png, jpg, bmp, tif) in " + directory.string() + ": capture at least " +
+                         std::to_string(min_views) + " views of the " + target);
+  }
+  ImageFolder folder;
+  folder.files = static_cast<int>(files.size());
+  ProgressScope scope(progress, progress_label, files.size());
+  for (const auto& file : files) {
+    if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
+    scope.Advance();
+    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
+    const std::string name = file.filename().string();
+    if (image.empty()) {
+      folder.rejected.push_back(name + ": unreadable image");
+      ROTOSCAN_LOG(kWarning) << name << ": unreadable image, skipped";
+      continue;
+    }
+    ++folder.readable;
+    if (folder.width == 0) {
+      folder.width = image.cols;
+      folder.height = image.rows;
+    } else if (image.cols != folder.width || image.rows != folder.height) {
+      return InvalidArgumentError(name + " is " + std::to_string(image.cols) + "x" +
+                                  std::to_string(image.rows) + " but the first image is " +
+                                  std::to_string(folder.width) + "x" + std::to_string(folder.height) +
+                                  ": all views must come from the same camera mode");
+    }
+    const Status found = detect(image, name);
+    if (!found.ok()) {
+      folder.rejected.push_back(name + ": " + found.message());
+      ROTOSCAN_LOG(kInfo) << name << ": " << found.message();
+    }
+  }
+  if (folder.readable == 0) {
+    return CorruptDataError("none of the " + std::to_string(files.size()) + " image files in " +
+                            directory.string() + " could be read");
+  }
+  return folder;
 }
 
 }  // namespace rotoscan::calib::internal

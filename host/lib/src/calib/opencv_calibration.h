@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -12,6 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "rotoscan/calib/camera_calibration.h"
+#include "rotoscan/core/progress.h"
 #include "rotoscan/core/status.h"
 
 namespace rotoscan::calib::internal {
@@ -28,7 +30,23 @@ Eigen::Isometry3d PoseFromRvecTvec(const cv::Mat& rvec, const cv::Mat& tvec);
 // invalid camera.
 Result<CameraCalibration> CalibrateCorrespondences(
     const std::vector<std::vector<Eigen::Vector3d>>& corners_in_target,
-    const std::vector<std::vector<Eigen::Vector2d>>& corner_pixels, const std::vector<std::string>& view_names,
-    int image_width, int image_height, bool fix_aspect_ratio, bool zero_tangential);
+    const std::vector<std::vector<Eigen::Vector2d>>& corner_pixels,
+    const std::vector<std::string>& view_names, int image_width, int image_height, bool fix_aspect_ratio,
+    bool zero_tangential);
+
+// The images of a calibration folder, as both camera calibrations read them: every image file of
+// `directory` (sorted by name), read as 8-bit gray, all of one size, handed with its file name to
+// `detect`, which keeps what it found and returns OK, or returns why the target is not in that image (the
+// image is then listed in `rejected`). Errors: no such directory, a listing failure, no image files (the
+// message asks for `min_views` views of `target`), images of different sizes, none readable, cancelled.
+struct ImageFolder {
+  int width = 0, height = 0;
+  int files = 0, readable = 0;
+  std::vector<std::string> rejected;  // "name: reason"
+};
+Result<ImageFolder> ReadImageFolder(
+    const std::filesystem::path& directory, const std::string& target, int min_views,
+    const std::string& progress_label, Progress* progress,
+    const std::function<Status(const cv::Mat& gray, const std::string& name)>& detect);
 
 }  // namespace rotoscan::calib::internal
