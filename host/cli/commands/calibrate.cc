@@ -320,42 +320,39 @@ Result<CalibratedAccuracy> RunCalibratedPlaneAccuracy(const CalibratedAccuracyOp
   if (options.work_dir.empty()) return InvalidArgumentError("no work directory");
   const std::string camera = "\"camera\": {\"distortion\": [" + std::to_string(options.k1) + ", 0, 0, 0, 0]}";
   std::vector<std::string> bundles;
+  // One calibration bundle of `object` (a JSON object without its closing brace) standing at `placement`.
+  auto render = [&](int seed, const std::string& object, const char* placement, const std::string& name,
+                    sim::SimulateKind kind) -> Status {
+    const std::string json = "{\"seed\": " + std::to_string(seed) + ", " + camera + ", \"objects\": [" +
+                             object + ", " + placement + "}]}";
+    ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene,
+                              sim::ParseScene(json, options.work_dir, "calibration scene"));
+    sim::SimulateOptions simulate;
+    simulate.out = options.work_dir / name;
+    simulate.kind = kind;
+    simulate.steps = options.calibration_steps;
+    simulate.overwrite = true;
+    ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, simulate, progress));
+    bundles.push_back(simulate.out.string());
+    return Status::Ok();
+  };
   if (options.target == CalibrationTarget::kObject) {
     // The placements of data/scenes/calibration-object.json and calibration-object-2.json.
     const char* placements[] = {"\"position_mm\": [0, 20, 0]",
                                 "\"position_mm\": [-30, 60, 0], \"rotation_deg\": [0, 0, 30]"};
     for (int p = 0; p < 2; ++p) {
-      const std::string json = "{\"seed\": " + std::to_string(p + 1) + ", " + camera +
-                               ", \"objects\": [{\"type\": \"calibration_object\", \"square_mm\": 10, " +
-                               placements[p] + "}]}";
-      ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene,
-                                sim::ParseScene(json, options.work_dir, "calibration scene"));
-      sim::SimulateOptions simulate;
-      simulate.out = options.work_dir / ("calibration-object-" + std::to_string(p + 1));
-      simulate.kind = sim::SimulateKind::kCalibrationObject;
-      simulate.steps = options.calibration_steps;
-      simulate.overwrite = true;
-      ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, simulate, progress));
-      bundles.push_back(simulate.out.string());
+      ROTOSCAN_RETURN_IF_ERROR(render(p + 1, "{\"type\": \"calibration_object\", \"square_mm\": 10",
+                                      placements[p], "calibration-object-" + std::to_string(p + 1),
+                                      sim::SimulateKind::kCalibrationObject));
     }
   } else {
     // The placements of data/scenes/calibration.json, calibration-2.json and calibration-3.json.
     const char* placements[] = {"\"position_mm\": [20, 20, 0]", "\"position_mm\": [-20, -20, 0]",
                                 "\"position_mm\": [0, 25, 0], \"rotation_deg\": [-25, 0, 0]"};
     for (int p = 0; p < 3; ++p) {
-      const std::string json = "{\"seed\": " + std::to_string(p + 1) + ", " + camera +
-                               ", \"objects\": [{\"type\": \"checkerboard\", \"cols\": 9, \"rows\": 6, "
-                               "\"square_mm\": 7, " +
-                               placements[p] + "}]}";
-      ROTOSCAN_ASSIGN_OR_RETURN(const sim::Scene scene,
-                                sim::ParseScene(json, options.work_dir, "calibration scene"));
-      sim::SimulateOptions simulate;
-      simulate.out = options.work_dir / ("table-board-" + std::to_string(p + 1));
-      simulate.kind = sim::SimulateKind::kTableCheckerboard;
-      simulate.steps = options.calibration_steps;
-      simulate.overwrite = true;
-      ROTOSCAN_RETURN_IF_ERROR(sim::Simulate(scene, simulate, progress));
-      bundles.push_back(simulate.out.string());
+      ROTOSCAN_RETURN_IF_ERROR(render(
+          p + 1, "{\"type\": \"checkerboard\", \"cols\": 9, \"rows\": 6, \"square_mm\": 7", placements[p],
+          "table-board-" + std::to_string(p + 1), sim::SimulateKind::kTableCheckerboard));
     }
   }
   if (options.board_poses > 0) {
