@@ -4,9 +4,11 @@
 //
 //   BM_ExtractTriangulate/<estimator>/<smoothing>  our extractor + triangulation (distorted camera)
 //   BM_ExtractBgr                      the same on 3-channel BGR frames (channel split included)
+//   BM_RowPassOnly                     our row pass alone (frames swapped: no row holds a line)
 //   BM_HorusBaseline                   what bq Horus does, with whole-image OpenCV operations as Horus does
-//                                      with NumPy: subtract, threshold, blur, a window around each row's
-//                                      maximum, centre of mass by a weight matrix, undistortPoints, plane
+//                                      with NumPy (and NumPy's float64): subtract, threshold, blur, a window
+//                                      around each row's maximum, centre of mass by a weight matrix, the
+//                                      segmented Gaussian filter along the line, undistortPoints, plane
 //   BM_HorusBaselineBgr                the same on color frames (subtract the color images, split, red),
 //                                      as Horus runs with a color camera: compare with BM_ExtractBgr
 //   BM_OpenCvTunedBaseline             the same with a per-row window loop (faster than Horus; reported too)
@@ -153,6 +155,22 @@ void BM_ExtractBgr(benchmark::State& state) {
 }
 BENCHMARK(BM_ExtractBgr)->Unit(benchmark::kMicrosecond);
 
+// The row pass alone: the frames swapped (laser-off minus laser-on is below the threshold everywhere), so
+// the same bytes are read and no row has a line. Compare with BM_StreamRead.
+void BM_RowPassOnly(benchmark::State& state) {
+  const Frames& f = GrayFrames();
+  rotoscan::laser::LineExtractor extractor;
+  rotoscan::laser::Line line;
+  size_t i = 0;
+  for (auto _ : state) {
+    const rotoscan::Status status = extractor.Extract(f.off[i], f.on[i], &line);
+    benchmark::DoNotOptimize(status);
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * kWidth * kHeight);
+}
+BENCHMARK(BM_RowPassOnly)->Unit(benchmark::kMicrosecond);
+
 // A tuned OpenCV variant of the same (per-row window instead of whole-image weights): not what Horus does,
 // measured so that the speed-up is not credited to a strawman alone.
 void BM_OpenCvTunedBaseline(benchmark::State& state) {
@@ -201,11 +219,44 @@ void BM_OpenCvTunedBaseline(benchmark::State& state) {
 }
 BENCHMARK(BM_OpenCvTunedBaseline)->Unit(benchmark::kMicrosecond);
 
-// bq Horus's pipeline (horus/engine/algorithms/laser_segmentation.py, "window" method) written with
-// OpenCV as Horus writes it with OpenCV + NumPy: whole-image operations only. Subtract, threshold, blur,
-// threshold again; per row the arg-max, a mask keeping a window of +-kWindow px around it; the centre of
-// mass as (weights * image).sum(axis=1) / image.sum(axis=1) in float; then undistortPoints and the
-// ray-plane intersection.
+// bq Horus's pipeline (horus/engine/algorithms/laser_segmentation.py, compute_2d_points, with the
+// "window" option on and its default "SGF" refinement) written with OpenCV as Horus writes it with OpenCV +
+// NumPy: whole-image operations, NumPy's types. Subtract, threshold, blur, threshold again; per row the
+// arg-max and a mask keeping +-kWindow px around it; the centre of mass as
+// (weight_matrix * image).sum(axis=1) / image.sum(axis=1), where Horus's weight_matrix is float64
+// (calibration_data.py builds it with np.linspace) so NumPy multiplies and sums in float64, and the uint8
+// row sums are integers; then the segmented Gaussian filter (scipy.ndimage.gaussian_filter, sigma 2,
+// truncate 4, mode 'reflect', over each run of rows with a point); then undistortPoints and the ray-plane
+// intersection (point_cloud_generation.py).
+void SegmentedGaussianFilter(const std::vector<int>& rows, std::vector<cv::Point2f>* pixels) {
+  constexpr int kRadius = 8;  // scipy: int(truncate * sigma + 0.5)
+  static const std::vector<double> kernel = [] {
+    std::vector<double> k(2 * kRadius + 1);
+    double sum = 0;
+    for (int i = -kRadius; i <= kRadius; ++i) sum += k[static_cast<size_t>(i + kRadius)] = std::exp(-0.125 * i * i);
+    for (double& v : k) v /= sum;
+    return k;
+  }();
+  std::vector<float> u(pixels->size());
+  size_t start = 0;
+  while (start < rows.size()) {
+    size_t end = start;
+    while (end + 1 < rows.size() && rows[end + 1] == rows[end] + 1) ++end;
+    const int n = static_cast<int>(end - start + 1);
+    for (int i = 0; i < n; ++i) {
+      double acc = 0;
+      for (int k = -kRadius; k <= kRadius; ++k) {
+        int j = i + k;
+        while (j < 0 || j >= n) j = j < 0 ? -j - 1 : 2 * n - j - 1;  // 'reflect': d c b a | a b c d | d c b a
+        acc += kernel[static_cast<size_t>(k + kRadius)] * (*pixels)[start + static_cast<size_t>(j)].x;
+      }
+      u[start + static_cast<size_t>(i)] = static_cast<float>(acc);
+    }
+    start = end + 1;
+  }
+  for (size_t i = 0; i < u.size(); ++i) (*pixels)[i].x = u[i];
+}
+
 void HorusBaseline(benchmark::State& state, bool color) {
   const Frames& f = color ? BgrFrames() : GrayFrames();
   const rotoscan::geometry::CameraModel camera = Camera();
@@ -213,12 +264,13 @@ void HorusBaseline(benchmark::State& state, bool color) {
   const cv::Mat dist(1, 5, CV_64F, const_cast<double*>(camera.distortion.data()));
   const rotoscan::geometry::Plane plane = Laser();
   constexpr int kWindow = 10;
-  cv::Mat weights(kHeight, kWidth, CV_32F);
+  cv::Mat weights(kHeight, kWidth, CV_64F);
   for (int r = 0; r < kHeight; ++r)
-    for (int c = 0; c < kWidth; ++c) weights.at<float>(r, c) = static_cast<float>(c);
+    for (int c = 0; c < kWidth; ++c) weights.at<double>(r, c) = c;
   cv::Mat diff, blurred, masked, image_f, weighted, sums, weighted_sums;
   std::vector<cv::Mat> planes;
   std::vector<cv::Point2f> pixels, undistorted;
+  std::vector<int> rows;
   std::vector<Eigen::Vector3d> points;
   size_t i = 0;
   for (auto _ : state) {
@@ -237,15 +289,20 @@ void HorusBaseline(benchmark::State& state, bool color) {
       const int lo = std::max(0, max_at.x - kWindow), hi = std::min(blurred.cols - 1, max_at.x + kWindow);
       blurred(cv::Rect(lo, r, hi - lo + 1, 1)).copyTo(masked(cv::Rect(lo, r, hi - lo + 1, 1)));
     }
-    masked.convertTo(image_f, CV_32F);
+    masked.convertTo(image_f, CV_64F);
     cv::multiply(image_f, weights, weighted);
-    cv::reduce(image_f, sums, 1, cv::REDUCE_SUM, CV_32F);
-    cv::reduce(weighted, weighted_sums, 1, cv::REDUCE_SUM, CV_32F);
+    cv::reduce(masked, sums, 1, cv::REDUCE_SUM, CV_32S);
+    cv::reduce(weighted, weighted_sums, 1, cv::REDUCE_SUM, CV_64F);
     pixels.clear();
+    rows.clear();
     for (int r = 0; r < kHeight; ++r) {
-      const float s = sums.at<float>(r, 0);
-      if (s > 0) pixels.emplace_back(weighted_sums.at<float>(r, 0) / s, static_cast<float>(r));
+      const int s = sums.at<int>(r, 0);
+      if (s > 0) {
+        pixels.emplace_back(static_cast<float>(weighted_sums.at<double>(r, 0) / s), static_cast<float>(r));
+        rows.push_back(r);
+      }
     }
+    SegmentedGaussianFilter(rows, &pixels);
     points.clear();
     if (!pixels.empty()) {
       cv::undistortPoints(pixels, undistorted, K, dist);

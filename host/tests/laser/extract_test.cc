@@ -428,11 +428,12 @@ TEST(ExtractTest, RowScanFindsTheLineAtEveryColumnOfEveryWidth) {
   options.noise_dn = 1.4;  // given: in a 9 px wide image the line is most of the pixels, no MAD holds
   LineExtractor extractor(options);
   Line line;
-  for (int width : {9, 16, 31, 40, 1288}) {
+  for (int width : {9, 16, 31, 40, 64, 70, 100, 200, 1288}) {
     std::vector<double> centres;
     for (double c = 3.3; c < width - 3.0; c += (width > 100 ? 7.1 : 0.9)) centres.push_back(c);
     centres.push_back(width - 3.6);  // inside the last (overlapping) block
     centres.push_back(15.6);         // across the boundary of the first two blocks
+    centres.push_back(63.6);         // across the boundary of the first two 64-pixel groups
     for (double centre : centres) {
       if (centre < 3.0 || centre > width - 3.0) continue;
       cv::Mat on, off;
@@ -492,6 +493,37 @@ double DirectSmoothedColumn(const std::vector<LinePoint>& raw, int i, int lo, in
     if (j == i || std::abs(raw[static_cast<size_t>(j)].column - predicted) <= outlier_px) kept.push_back(j);
   }
   return kept.size() == all.size() ? first(0) : solve(kept)(0);
+}
+
+// The centre of mass against its definition, on profiles long enough for the vector sums' every path
+// (8-pixel blocks, the 1024-pixel limit of their 32-bit lanes, the scalar tail), at every alignment.
+TEST(ExtractTest, CentreOfMassMatchesItsDefinition) {
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<int> value(0, 255);
+  std::vector<uint8_t> d(3000);
+  for (uint8_t& v : d) v = static_cast<uint8_t>(value(rng));
+  for (int first : {0, 1, 5, 13}) {
+    for (int length : {1, 7, 8, 9, 23, 1023, 1024, 1025, 2900}) {
+      const int last = first + length - 1;
+      int peak = 0;
+      for (int i = first; i <= last; ++i) peak = std::max<int>(peak, d[static_cast<size_t>(i)]);
+      // The definition, in real numbers, over the run without extending it (the neighbours are below
+      // 0.15 peak: set them so).
+      std::vector<uint8_t> profile = d;
+      if (first > 0) profile[static_cast<size_t>(first - 1)] = 0;
+      if (last + 1 < static_cast<int>(profile.size())) profile[static_cast<size_t>(last + 1)] = 0;
+      double sum_w = 0, sum_wx = 0;
+      for (int i = first; i <= last; ++i) {
+        const double w = std::max(0.0, profile[static_cast<size_t>(i)] - 0.15 * peak);
+        sum_w += w;
+        sum_wx += w * i;
+      }
+      const double expected = sum_w > 0 ? sum_wx / sum_w : 0.5 * (first + last);
+      const double got = EstimateCentre(Estimator::kCenterOfMass, profile.data(), static_cast<int>(profile.size()),
+                                        first, last, peak);
+      EXPECT_NEAR(got, expected, 1e-9 * std::max(1.0, expected)) << "first " << first << " length " << length;
+    }
+  }
 }
 
 TEST(SmoothAlongLineTest, MatchesTheDefiningWeightedFit) {

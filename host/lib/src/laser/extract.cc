@@ -83,6 +83,7 @@
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
+#include <xmmintrin.h>
 #endif
 
 #include "rotoscan/core/check.h"
@@ -90,11 +91,13 @@
 namespace rotoscan::laser {
 namespace {
 
-// The centre of mass weighs d - kCenterOfMassLevel * peak over the run above that level. Measured on the
+// The centre of mass weighs d - 0.15 * peak over the run above that level. Measured on the
 // synthetic cases of EstimatorComparison with levels 0.5, 0.35, 0.25, 0.2, 0.15 and 0.1: below 0.25 the
 // wide weak line gains (more pixels average the noise, 0.092 -> 0.073 px) and nothing loses; 0.15 keeps a
 // margin of 6 sigma over a 60 DN line's noise floor.
-constexpr double kCenterOfMassLevel = 0.15;
+// The level 0.15 as the exact fraction kComLevelNum / kComScale.
+constexpr int kComScale = 20;
+constexpr int kComLevelNum = 3;
 
 struct Candidate {
   int peak_pos = 0;  // first pixel at the peak value
@@ -105,25 +108,171 @@ struct Candidate {
   bool off_saturated = false;
 };
 
+// The centre of mass of d - 0.15 peak over [first, last] (the run above that level). In integers: the
+// weights scaled by kComScale, so the sums are exact and the ratio is the same as in real numbers.
+inline double CenterOfMassOver(const uint8_t* d, int first, int last, int peak) {
+  const int level = kComLevelNum * peak;
+  int64_t sum_w = 0, sum_wx = 0;
+  int i = first;
+#if defined(__SSE2__)
+  // 8 pixels at a time in 16-bit lanes: w = max(0, 20 d - level) <= 5100 and the offset i - first, their
+  // products summed in pairs by madd into 32-bit lanes. Over the first 1024 pixels a lane's sum stays
+  // below 5100 * 1024^2 / 2 / 4 < 2^31; a longer run (never a laser line) finishes in the scalar loop.
+  const __m128i scale = _mm_set1_epi16(kComScale);
+  const __m128i lv = _mm_set1_epi16(static_cast<int16_t>(level));
+  const __m128i ones = _mm_set1_epi16(1);
+  __m128i offset = _mm_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m128i eight = _mm_set1_epi16(8);
+  __m128i acc_w = _mm_setzero_si128(), acc_wx = _mm_setzero_si128();
+  for (; i + 8 <= last + 1 && i + 8 - first <= 1024; i += 8) {
+    const __m128i v = _mm_unpacklo_epi8(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(d + i)), _mm_setzero_si128());
+    const __m128i w = _mm_max_epi16(_mm_sub_epi16(_mm_mullo_epi16(v, scale), lv), _mm_setzero_si128());
+    acc_w = _mm_add_epi32(acc_w, _mm_madd_epi16(w, ones));
+    acc_wx = _mm_add_epi32(acc_wx, _mm_madd_epi16(w, offset));
+    offset = _mm_add_epi16(offset, eight);
+  }
+  alignas(16) int32_t lanes_w[4], lanes_wx[4];
+  _mm_store_si128(reinterpret_cast<__m128i*>(lanes_w), acc_w);
+  _mm_store_si128(reinterpret_cast<__m128i*>(lanes_wx), acc_wx);
+  for (int k = 0; k < 4; ++k) {
+    sum_w += lanes_w[k];
+    sum_wx += int64_t{lanes_wx[k]} + int64_t{lanes_w[k]} * first;
+  }
+#endif
+  for (; i <= last; ++i) {
+    const int w = std::max(0, kComScale * d[i] - level);
+    sum_w += w;
+    sum_wx += int64_t{w} * i;
+  }
+  if (sum_w <= 0) return 0.5 * (first + last);  // a flat run exactly at the level
+  return static_cast<double>(sum_wx) / static_cast<double>(sum_w);
+}
+
+// Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
+constexpr int kPad = 16;
+
+// How many pixels from `at` on (ExtentRight) or from `at` back (ExtentLeft) in a row are >= min_value
+// (1..255), reading 16 at a time. The row must be padded with kPad zero bytes on both sides, which stop
+// the scans at the borders.
+inline int ExtentRight(const uint8_t* d, int at, int min_value) {
+#if defined(__SSE2__)
+  const __m128i m = _mm_set1_epi8(static_cast<char>(min_value));
+  int n = 0;
+  for (;;) {
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(d + at + n));
+    const unsigned bits = static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, m), v)));
+    const int ones = __builtin_ctz(~bits);  // bits has 16 bits: ~bits is never 0
+    n += ones;
+    if (ones < 16) return n;
+  }
+#else
+  int n = 0;
+  while (d[at + n] >= min_value) ++n;
+  return n;
+#endif
+}
+inline int ExtentLeft(const uint8_t* d, int at, int min_value) {
+#if defined(__SSE2__)
+  const __m128i m = _mm_set1_epi8(static_cast<char>(min_value));
+  int n = 0;
+  for (;;) {
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(d + at - n - 15));
+    const unsigned bits = static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, m), v)));
+    const int ones = __builtin_clz(~(bits << 16));  // leading ones of the 16 bits, from pixel at - n down
+    n += ones;
+    if (ones < 16) return n;
+  }
+#else
+  int n = 0;
+  while (d[at - n] >= min_value) ++n;
+  return n;
+#endif
+}
+
+// The highest value of d over [first, last] and the first pixel holding it. The row must be padded with
+// kPad zero bytes after its end (the vector loads may run past `last`; those lanes are cleared).
+struct PeakInRun {
+  int value = 0;
+  int position = 0;
+};
+inline PeakInRun FindPeak(const uint8_t* d, int first, int last) {
+#if defined(__SSE2__)
+  const int length = last - first + 1;
+  const __m128i lane = _mm_setr_epi8(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  auto load = [&](int k) {  // the 16 pixels from first + k, those past `last` zeroed
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(d + first + k));
+    const int remaining = std::min(16, length - k);
+    return _mm_and_si128(v, _mm_cmpgt_epi8(_mm_set1_epi8(static_cast<char>(remaining)), lane));
+  };
+  __m128i best = _mm_setzero_si128();
+  for (int k = 0; k < length; k += 16) best = _mm_max_epu8(best, load(k));
+  best = _mm_max_epu8(best, _mm_srli_si128(best, 8));
+  best = _mm_max_epu8(best, _mm_srli_si128(best, 4));
+  best = _mm_max_epu8(best, _mm_srli_si128(best, 2));
+  best = _mm_max_epu8(best, _mm_srli_si128(best, 1));
+  PeakInRun peak;
+  peak.value = _mm_cvtsi128_si32(best) & 0xff;
+  const __m128i target = _mm_set1_epi8(static_cast<char>(peak.value));
+  for (int k = 0; k < length; k += 16) {
+    const unsigned hits = static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(load(k), target)));
+    if (hits != 0) {
+      peak.position = first + k + __builtin_ctz(hits);
+      break;
+    }
+  }
+  return peak;
+#else
+  PeakInRun peak{d[first], first};
+  for (int i = first + 1; i <= last; ++i) {
+    if (d[i] > peak.value) peak = {d[i], i};
+  }
+  return peak;
+#endif
+}
+
 // Robust noise sigma of (on - off) from a sparse sample: 1.4826 * MAD, the median interpolated within
 // the integer histogram bins so that sub-DN noise is not rounded to 0 or 1.
 double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
   const int channels = on.channels();
-  std::array<uint32_t, 511> histogram{};
-  // 16 rows, every 4th pixel: ~5,000 samples at 1288x964, enough for a MAD to a few percent, and cheap
-  // (a denser sample was 17% of the extraction time).
+  // 16 rows spread over the frame, in each 4 stretches of 64 pixels spread over the row (the whole row
+  // when it is narrower than 256): ~4,000 samples at 1288x964, enough for a MAD to a few percent. The
+  // frames are not in the cache yet, so the cost is the cache lines touched: contiguous stretches touch
+  // 1 in 5 of the sampled rows' lines (every 4th pixel of whole rows touched them all and was ~13 % of a
+  // frame's extraction, laser_bench). Noise fills few bins, so consecutive increments of one histogram
+  // would wait on each other's store; four interleaved ones do not.
+  std::array<std::array<uint32_t, 511>, 4> partial{};
   const int row_step = std::max(1, on.rows / 16);
-  const int col_step = on.cols >= 256 ? 4 : 1;
+  constexpr int kStretch = 64;
+  const int stretches = on.cols >= 4 * kStretch ? 4 : 1;
+  const int stretch = stretches == 4 ? kStretch : on.cols;
+  auto stretch_start = [&](int j) { return stretches == 4 ? (2 * j + 1) * on.cols / 8 - kStretch / 2 : 0; };
+  // All the lines are requested first, so that their misses overlap instead of following one another.
+  for (int r = row_step / 2; r < on.rows; r += row_step) {
+    for (int j = 0; j < stretches; ++j) {
+      const size_t from = static_cast<size_t>(stretch_start(j) * channels);
+      const size_t to = static_cast<size_t>((stretch_start(j) + stretch) * channels);
+      for (size_t k = from; k < to + 64; k += 64) {
+        __builtin_prefetch(on.ptr<uint8_t>(r) + std::min(k, to - 1));
+        __builtin_prefetch(off.ptr<uint8_t>(r) + std::min(k, to - 1));
+      }
+    }
+  }
   uint32_t total = 0;
   for (int r = row_step / 2; r < on.rows; r += row_step) {
     const uint8_t* a = on.ptr<uint8_t>(r);
     const uint8_t* b = off.ptr<uint8_t>(r);
-    for (int c = 0; c < on.cols; c += col_step) {
-      const int k = c * channels + channel;
-      ++histogram[static_cast<size_t>(int{a[k]} - int{b[k]} + 255)];
-      ++total;
+    for (int j = 0; j < stretches; ++j) {
+      const int from = stretch_start(j);
+      for (int c = from, n = 0; c < from + stretch; ++c, ++n) {
+        const int k = c * channels + channel;
+        ++partial[static_cast<size_t>(n & 3)][static_cast<size_t>(int{a[k]} - int{b[k]} + 255)];
+      }
+      total += static_cast<uint32_t>(stretch);
     }
   }
+  std::array<uint32_t, 511> histogram{};
+  for (size_t k = 0; k < histogram.size(); ++k)
+    histogram[k] = partial[0][k] + partial[1][k] + partial[2][k] + partial[3][k];
   if (total < 16) return 0.0;
   auto interpolated_median = [&](const auto& hist, int bins, uint32_t count) {
     const double half = 0.5 * count;
@@ -231,19 +380,10 @@ double EstimateCentre(Estimator estimator, const uint8_t* d, int size, int first
   ROTOSCAN_CHECK(first >= 0 && last < size && first <= last) << "run [" << first << ", " << last << "]";
   switch (estimator) {
     case Estimator::kCenterOfMass: {
-      const double level = kCenterOfMassLevel * peak;
-      while (first > 0 && d[first - 1] > level) --first;
-      while (last < size - 1 && d[last + 1] > level) ++last;
-      double sum_w = 0, sum_wx = 0;
-      for (int i = first; i <= last; ++i) {
-        const double w = d[i] - level;
-        if (w > 0) {
-          sum_w += w;
-          sum_wx += w * i;
-        }
-      }
-      if (sum_w <= 0) return 0.5 * (first + last);  // a flat run exactly at half maximum
-      return sum_wx / sum_w;
+      const int level = kComLevelNum * peak;
+      while (first > 0 && kComScale * d[first - 1] > level) --first;
+      while (last < size - 1 && kComScale * d[last + 1] > level) ++last;
+      return CenterOfMassOver(d, first, last, peak);
     }
     case Estimator::kParabolic:
     case Estimator::kGaussian: {
@@ -364,6 +504,7 @@ Status LineExtractor::ExtractFromChannel(const cv::Mat& on_channel, const cv::Ma
 // there (cv::extractChannel goes through the generic, scalar mixChannels: 3x slower). The frames are read from memory once, instead of once by a whole-frame channel copy
 // and again by the row loop (laser_bench BM_ExtractBgr: 913 -> see README).
 constexpr int kBandRows = 32;
+constexpr int kPrefetchRows = 3;
 
 Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line) {
   const ExtractOptions& o = options_;
@@ -378,10 +519,12 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   const double threshold_real = std::max(o.min_contrast_dn, o.min_snr * stats.noise_dn);
   const int threshold = static_cast<int>(std::ceil(std::min(threshold_real, 255.0)));
   stats.threshold_dn = threshold;
-  diff_.resize(static_cast<size_t>(cols) + 16);
-  block_starts_.resize(static_cast<size_t>(cols) / 16 + 2);
-  block_masks_.resize(static_cast<size_t>(cols) / 16 + 2);
-  uint8_t* d = diff_.data();
+  // The row's difference with kPad zero bytes on either side, so that the extent scans below can read
+  // whole vectors at the borders and stop there.
+  diff_.assign(static_cast<size_t>(cols) + 2 * kPad, 0);
+  block_starts_.resize(static_cast<size_t>(cols) / 16 + 3);
+  block_masks_.resize(static_cast<size_t>(cols) / 16 + 3);
+  uint8_t* d = diff_.data() + kPad;
 
   std::array<Candidate, 32> candidates;
   double previous_column = -1.0;
@@ -400,43 +543,61 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     } else {
       a = on.ptr<uint8_t>(r);
       b = off.ptr<uint8_t>(r);
+#if defined(__SSE2__)
+      if (r + kPrefetchRows < rows) {
+        const char* pa = reinterpret_cast<const char*>(on.ptr<uint8_t>(r + kPrefetchRows));
+        const char* pb = reinterpret_cast<const char*>(off.ptr<uint8_t>(r + kPrefetchRows));
+        for (int k = 0; k < cols; k += 64) {
+          _mm_prefetch(pa + k, _MM_HINT_T0);
+          _mm_prefetch(pb + k, _MM_HINT_T0);
+        }
+      }
+#endif
     }
-    // Step 1: saturating difference, and the 16-pixel blocks that hold a pixel >= threshold, compacted
+    // Step 1: saturating difference, and the 64-pixel groups that hold a pixel >= threshold, compacted
     // into (start, bit mask) pairs without a branch. Nothing else is read per pixel, so a row without
-    // the laser costs two loads, four vector instructions and a store per 16 pixels (the loop runs at
-    // the memory-bandwidth bound, laser_bench). A width that is not a multiple of 16 ends with one
-    // overlapping block whose already-seen bits are cleared.
+    // the laser costs two loads and five vector instructions per 16 pixels and one compaction per 64 (the
+    // loop runs at the memory-bandwidth bound, laser_bench BM_RowPassOnly). A width that is not a
+    // multiple of 16 ends with one overlapping block whose already-seen bits are cleared.
     int block_count = 0;
     {
       int* starts = block_starts_.data();
-      uint16_t* masks = block_masks_.data();
-      auto push = [&](int start, unsigned mask) {
+      uint64_t* masks = block_masks_.data();
+      auto push = [&](int start, uint64_t mask) {
         starts[block_count] = start;
-        masks[block_count] = static_cast<uint16_t>(mask);
+        masks[block_count] = mask;
         block_count += mask != 0;
       };
       int i0 = 0;
 #if defined(__SSE2__)
       const __m128i t = _mm_set1_epi8(static_cast<char>(threshold));
-      auto block = [&](int at) {
+      auto block = [&](int at) -> uint64_t {
         const __m128i v = _mm_subs_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a + at)),
                                         _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + at)));
         _mm_storeu_si128(reinterpret_cast<__m128i*>(d + at), v);
-        return static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, t), v)));
+        return static_cast<uint32_t>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, t), v)));
       };
-      for (; i0 + 16 <= cols; i0 += 16) push(i0, block(i0));
+      for (; i0 + 64 <= cols; i0 += 64) {
+        push(i0, block(i0) | block(i0 + 16) << 16 | block(i0 + 32) << 32 | block(i0 + 48) << 48);
+      }
+      if (i0 + 16 <= cols) {
+        const int base = i0;
+        uint64_t mask = 0;
+        for (; i0 + 16 <= cols; i0 += 16) mask |= block(i0) << (i0 - base);
+        push(base, mask);
+      }
       if (i0 < cols && cols >= 16) {
         const int at = cols - 16;
-        push(at, block(at) & ~((1u << (i0 - at)) - 1u));
+        push(at, block(at) & ~((uint64_t{1} << (i0 - at)) - 1u));
         i0 = cols;
       }
 #endif
       for (; i0 < cols; i0 += 16) {  // portable path (and images narrower than 16 pixels)
-        unsigned mask = 0;
+        uint64_t mask = 0;
         for (int k = 0; k < 16 && i0 + k < cols; ++k) {
           const uint8_t x = a[i0 + k], y = b[i0 + k];
           d[i0 + k] = static_cast<uint8_t>(x > y ? x - y : 0);
-          mask |= static_cast<unsigned>(d[i0 + k] >= threshold) << k;
+          mask |= static_cast<uint64_t>(d[i0 + k] >= threshold) << k;
         }
         push(i0, mask);
       }
@@ -450,18 +611,13 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     auto add_run = [&](int run_first, int run_last) {
       if (count >= static_cast<int>(candidates.size())) return;
       Candidate& c = candidates[static_cast<size_t>(count)];
-      c.peak_pos = run_first;
-      c.peak = d[run_first];
-      for (int i = run_first + 1; i <= run_last; ++i) {
-        if (d[i] > c.peak) {
-          c.peak = d[i];
-          c.peak_pos = i;
-        }
-      }
+      const PeakInRun found = FindPeak(d, run_first, run_last);
+      c.peak_pos = found.position;
+      c.peak = found.value;
       const double half = 0.5 * c.peak;
-      int lo = c.peak_pos, hi = c.peak_pos;
-      while (lo > 0 && d[lo - 1] >= half) --lo;
-      while (hi < cols - 1 && d[hi + 1] >= half) ++hi;
+      // The half-maximum extent: d >= peak / 2, i.e. d >= ceil(peak / 2) for integers.
+      const int lo = c.peak_pos - ExtentLeft(d, c.peak_pos - 1, (c.peak + 1) / 2);
+      const int hi = c.peak_pos + ExtentRight(d, c.peak_pos + 1, (c.peak + 1) / 2);
       c.first = lo;
       c.last = hi;
       const double left = lo > 0 ? Crossing(d, lo - 1, lo, half) : lo - 0.5;
@@ -479,15 +635,18 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     int run_start = -1, run_last = -2;
     for (int k = 0; k < block_count; ++k) {
       const int base = block_starts_[static_cast<size_t>(k)];
-      unsigned mask = block_masks_[static_cast<size_t>(k)];
-      while (mask != 0) {
-        const int j = base + __builtin_ctz(mask);
-        mask &= mask - 1;
+      uint64_t mask = block_masks_[static_cast<size_t>(k)];
+      while (mask != 0) {  // one turn per run of set bits, not per bit
+        const int from = __builtin_ctzll(mask);
+        const uint64_t rest = ~(mask >> from);
+        const int length = rest != 0 ? __builtin_ctzll(rest) : 64 - from;
+        mask = length + from >= 64 ? 0 : mask & (~uint64_t{0} << (from + length));
+        const int j = base + from;
         if (j != run_last + 1) {
           if (run_start >= 0) add_run(run_start, run_last);
           run_start = j;
         }
-        run_last = j;
+        run_last = j + length - 1;
       }
     }
     add_run(run_start, run_last);
@@ -528,7 +687,15 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     }
     const Candidate& c = candidates[static_cast<size_t>(best)];
     // Step 5: sub-pixel centre.
-    const double column = EstimateCentre(o.estimator, d, cols, c.first, c.last, c.peak);
+    double column;
+    if (o.estimator == Estimator::kCenterOfMass) {  // EstimateCentre's, with the vector extent scans
+      const int level_min = kComLevelNum * c.peak / kComScale + 1;  // d > 0.15 peak for integers
+      const int first = c.first - ExtentLeft(d, c.first - 1, level_min);
+      const int last = c.last + ExtentRight(d, c.last + 1, level_min);
+      column = CenterOfMassOver(d, first, last, c.peak);
+    } else {
+      column = EstimateCentre(o.estimator, d, cols, c.first, c.last, c.peak);
+    }
     if (column < 0) {
       ++stats.bad_width;
       continue;
@@ -568,9 +735,10 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   const int n = static_cast<int>(points->size());
   if (half_rows == 0 || n < 2) return;
   LinePoint* p = points->data();
-  scratch->resize(static_cast<size_t>(n));
+  scratch->resize(static_cast<size_t>(n) + 4);  // +4: the outlier test's last vector may read past the end
   float* raw = scratch->data();
   for (int i = 0; i < n; ++i) raw[i] = p[i].column;
+  for (int i = n; i < n + 4; ++i) raw[i] = 0.0f;
   // Weighted least-squares polynomial c(x) = a + b x (+ q x^2 for degree 2) through the neighbours j of
   // point i, x = j - i (a stretch has consecutive rows), triangular weight half_rows + 1 - |x|; the
   // smoothed centre is a. Columns relative to raw[i] so that floats keep their precision. Plain scalar
@@ -650,6 +818,18 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     s2_sym += w * x * x;
   }
   std::vector<double>& prefix = prefix_scratch();
+  // The fast path's outlier candidates are bits x + h of one 64-bit word: the vector test (which may
+  // run 3 lanes past the window) needs 2h + 4 <= 64; wider windows test one neighbour at a time.
+  const bool vector_test = 2 * h + 4 <= 64;
+  const uint64_t window_bits =
+      vector_test ? (((uint64_t{1} << (2 * h + 1)) - 1) & ~(uint64_t{1} << h)) : 0;  // less the point itself
+#if defined(__SSE2__)
+  const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+  constexpr double kMargin = 1e-3;  // px; float rounding of columns < 10^4 px is < 1e-3 * 1e-3 px
+  const __m128 limit_lo = _mm_set1_ps(static_cast<float>(outlier_px - kMargin));
+  const __m128 x_first = _mm_setr_ps(static_cast<float>(-h), static_cast<float>(-h + 1),
+                                     static_cast<float>(-h + 2), static_cast<float>(-h + 3));
+#endif
   auto smooth_stretch = [&](int start, int end) {
     const int len = end - start + 1;
     const double origin = raw[start];
@@ -658,13 +838,14 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
       // Layout: P_y, P_jy (prefix sums of y and j y, j from the stretch start), then the box sums of both
       // over box taps starting at each index, then their prefix sums.
       const size_t m = static_cast<size_t>(len);
-      prefix.assign(6 * (m + 1), 0.0);
+      prefix.resize(6 * (m + 1));  // every entry read is written before, the four zeros below included
       double* py = prefix.data();
       double* pjy = py + (m + 1);
       double* by = pjy + (m + 1);
       double* bjy = by + (m + 1);
       double* qy = bjy + (m + 1);
       double* qjy = qy + (m + 1);
+      py[0] = pjy[0] = qy[0] = qjy[0] = 0.0;
       for (int k = 0; k < len; ++k) {
         const double y = raw[start + k] - origin;
         py[k + 1] = py[k] + y;
@@ -684,18 +865,57 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
         const double fa = t0 / s0_sym;
         const double fb = order >= 1 ? t1 / s2_sym : 0.0;
         const int i = start + k;
-        bool explained = true;
-        for (int x = -h; x <= h; ++x) {
-          explained &= std::abs(raw[i + x] - origin - (fa + x * fb)) <= outlier_px;
+        // The neighbours the first fit may not explain, as bits of x + h: a float test, 4 at a time, with
+        // a margin; each candidate is then decided in double as the general fit decides it, so the
+        // outcome is the general fit's exactly.
+        const double a_abs = fa + origin;
+        uint64_t candidates = 0;
+#if defined(__SSE2__)
+        if (vector_test) {
+          const __m128 slope4 = _mm_set1_ps(static_cast<float>(4.0 * fb));
+          __m128 fitted = _mm_add_ps(_mm_set1_ps(static_cast<float>(a_abs)),
+                                     _mm_mul_ps(x_first, _mm_set1_ps(static_cast<float>(fb))));
+          for (int x0 = -h; x0 <= h; x0 += 4) {
+            const __m128 r = _mm_and_ps(abs_mask, _mm_sub_ps(_mm_loadu_ps(raw + i + x0), fitted));
+            candidates |= static_cast<uint64_t>(_mm_movemask_ps(_mm_cmpgt_ps(r, limit_lo))) << (x0 + h);
+            fitted = _mm_add_ps(fitted, slope4);
+          }
+          candidates &= window_bits;
+        } else
+#endif
+        {
+          for (int x = -h; x <= h; ++x) {
+            if (x != 0 && std::abs(raw[i + x] - (a_abs + x * fb)) > outlier_px) candidates |= uint64_t{1} << (x + h);
+          }
         }
-        if (explained) {
-          p[i].column = static_cast<float>(fa + origin);
-        } else {
-          Fit first;  // the fit above, in the general fit's terms
-          first.a = fa + origin;
-          first.b = fb;
-          p[i].column = static_cast<float>(robust_fit_from(i, i - h, i + h, first));
+        if (candidates == 0) {
+          p[i].column = static_cast<float>(a_abs);
+          continue;
         }
+        // The second fit: the symmetric sums less the outliers' terms (the general fit's result, O(outliers)).
+        double s0 = s0_sym, s1 = 0, s2 = s2_sym, u0 = t0, u1 = t1;
+        bool any = false;
+        while (candidates != 0) {
+          const int x = __builtin_ctzll(candidates) - h;
+          candidates &= candidates - 1;
+          if (std::abs(raw[i + x] - (a_abs + x * fb)) <= outlier_px) continue;  // explained after all
+          any = true;
+          const double w = h + 1 - std::abs(x);
+          const double y = raw[i + x] - origin;
+          s0 -= w;
+          s1 -= w * x;
+          s2 -= w * x * x;
+          u0 -= w * y;
+          u1 -= w * x * y;
+        }
+        if (!any) {
+          p[i].column = static_cast<float>(a_abs);
+          continue;
+        }
+        const double det = s0 * s2 - s1 * s1;
+        double a2 = u0 / s0;
+        if (order >= 1 && det > 1e-9 * s0 * s2) a2 = (s2 * u0 - s1 * u1) / det;
+        p[i].column = static_cast<float>(a2 + origin);
       }
     }
     for (int i = start; i <= end; ++i) {

@@ -126,8 +126,8 @@ class LineExtractor {
 
   ExtractOptions options_;
   std::vector<uint8_t> diff_;
-  std::vector<int> block_starts_;      // the row's 16-pixel blocks holding a pixel >= threshold: start
-  std::vector<uint16_t> block_masks_;  // and bits of d >= threshold
+  std::vector<int> block_starts_;      // the row's pixel groups holding a pixel >= threshold: start
+  std::vector<uint64_t> block_masks_;  // and bits of d >= threshold (bit k: pixel start + k)
   std::vector<float> raw_columns_;     // along-line smoothing: the centres before smoothing
   std::vector<cv::Mat> on_planes_, off_planes_;  // a band of color frames, split into channels
   cv::Mat on_bgr_, off_bgr_;                     // demosaiced Bayer frames
