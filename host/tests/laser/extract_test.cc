@@ -209,6 +209,44 @@ TEST(ExtractTest, ColorChannelsAndLayouts) {
   EXPECT_EQ(ExtractLine(on_bgr, off_bgr, rgb_blue)->points.size(), 16u);
 }
 
+// Color frames give exactly the line of their laser channel read as gray, for 3 and 4 channels, every
+// channel, and widths that end with a partial 16-pixel block (the channel is pulled out per row with byte
+// shuffles on x86, by banded cv::split elsewhere).
+TEST(ExtractTest, ColorInputEqualsItsChannelAsGray) {
+  for (int width : {7, 37, 1288}) {
+    cv::Mat on, off;
+    MakePair(
+        width, 24, NarrowGaussian(), [&](int r) { return 0.5 * width + 0.1 * r - 1.0; }, 17, &on, &off);
+    for (int channels : {3, 4}) {
+      for (int index = 0; index < 3; ++index) {
+        // The line in channel `index`; the other channels different noise-free levels.
+        std::vector<cv::Mat> on_planes, off_planes;
+        for (int k = 0; k < channels; ++k) {
+          on_planes.push_back(k == index ? on : cv::Mat(on.size(), CV_8UC1, cv::Scalar(40 + 50 * k)));
+          off_planes.push_back(k == index ? off : cv::Mat(on.size(), CV_8UC1, cv::Scalar(40 + 50 * k)));
+        }
+        cv::Mat on_color, off_color;
+        cv::merge(on_planes, on_color);
+        cv::merge(off_planes, off_color);
+        ExtractOptions options;
+        options.channel = index == 2 ? Channel::kRed : index == 1 ? Channel::kGreen : Channel::kBlue;
+        if (width < 16) options.noise_dn = 1.4;  // a 7 px wide frame is mostly line: no MAD holds
+        const auto color = ExtractLine(on_color, off_color, options);
+        const auto gray = ExtractLine(on, off, options);
+        ASSERT_TRUE(color.ok() && gray.ok());
+        ASSERT_EQ(color->points.size(), gray->points.size()) << width << " " << channels << " " << index;
+        EXPECT_FALSE(gray->points.empty());
+        for (size_t i = 0; i < gray->points.size(); ++i) {
+          EXPECT_EQ(color->points[i].row, gray->points[i].row);
+          EXPECT_EQ(color->points[i].column, gray->points[i].column) << width << " " << channels << " " << index;
+          EXPECT_EQ(color->points[i].peak, gray->points[i].peak);
+        }
+        EXPECT_EQ(color->stats.noise_dn, gray->stats.noise_dn);
+      }
+    }
+  }
+}
+
 TEST(ExtractTest, BayerRawInput) {
   // A wide line (as on a webcam) in the red channel, mosaicked into an RGGB raw frame.
   LineSpec s = SaturatedFlatTop();

@@ -1,14 +1,15 @@
 // Laser line extraction: design notes.
 //
-// One pass per row, row-major, no allocation per row (the row buffer lives in the extractor):
-//  1. d[i] = max(on[i] - off[i], 0) on the laser channel (differential imaging, paper §3.1) and the row
-//     maximum, in one loop the compiler vectorises (saturating byte subtraction).
-//  2. If the maximum is below the detection threshold T = max(min_contrast_dn, min_snr * noise) the row
-//     has no laser (the common case for rows above and below the object: it costs only step 1).
-//  3. Otherwise the candidates are the runs of d >= T (16-byte blocks with nothing above T are skipped
-//     with one SSE2 compare). For each run: its peak p, the half-maximum extent [a, b] around the peak,
-//     the width at half maximum (edges interpolated linearly), and whether the laser-off frame is
-//     saturated under it (a specular highlight that hides the laser).
+// The detection threshold T = max(min_contrast_dn, min_snr * noise) comes first, the noise from a sparse
+// sample of the frame (EstimateNoise). Then one pass per row, row-major, no allocation per row (the row
+// buffer lives in the extractor), the rows a few ahead prefetched so that memory and work overlap:
+//  1. d[i] = max(on[i] - off[i], 0) on the laser channel (differential imaging, paper §3.1), 16 pixels
+//     per SSE2 instruction, and the bit mask of d >= T per 64-pixel group, groups without a bit dropped.
+//  2. No bit in the row: no laser (the common case for rows above and below the object: it costs only
+//     step 1, which runs at the memory-bandwidth bound, laser_bench BM_RowPassOnly).
+//  3. Otherwise the candidates are the runs of set bits. For each run: its peak p, the half-maximum extent
+//     [a, b] around the peak (vector scans), the width at half maximum (edges interpolated linearly), and
+//     whether the laser-off frame is saturated under it (a specular highlight that hides the laser).
 //  4. Candidates narrower than min_width (glints, hot pixels) or wider than max_width (ambient blobs) are
 //     dropped. Of the others the highest peak wins; a rival within multiple_peak_ratio of it flags the row
 //     (kFlagMultiplePeaks), and then the one nearer the previous row's point wins (lines are continuous).
@@ -84,6 +85,9 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #include <xmmintrin.h>
+#if defined(__x86_64__) || defined(__i386__)
+#include <tmmintrin.h>
+#endif
 #endif
 
 #include "rotoscan/core/check.h"
@@ -499,18 +503,70 @@ Status LineExtractor::ExtractFromChannel(const cv::Mat& on_channel, const cv::Ma
   return ExtractRows(on_channel, off_channel, 0, line);
 }
 
-// Color input is read in bands of kBandRows rows: OpenCV's vectorised cv::split deinterleaves a band of
-// both frames into small buffers that stay in the L2 cache, and the row loop reads the laser channel
-// there (cv::extractChannel goes through the generic, scalar mixChannels: 3x slower). The frames are read from memory once, instead of once by a whole-frame channel copy
-// and again by the row loop (laser_bench BM_ExtractBgr: 913 -> see README).
+// Color input (3 or 4 interleaved channels): on x86 with SSSE3 each row's laser channel is pulled out
+// with byte shuffles into a row buffer (ChannelRowSsse3: 16 pixels from 3 or 4 loads, 3 or 4 shuffles),
+// so the frames are read once and nothing else is written. Elsewhere the frames are read in bands of
+// kBandRows rows that OpenCV's vectorised cv::split deinterleaves into small buffers in the L2 cache
+// (cv::extractChannel goes through the generic, scalar mixChannels: 3x slower). laser_bench
+// BM_ExtractBgr: split bands 673 µs, shuffles see README.
 constexpr int kBandRows = 32;
+// The row pass asks for the row this many rows ahead: the hardware prefetcher alone left the per-row
+// work waiting on memory (laser_bench, smoothed, measured on a busy machine: no prefetch ~220 µs per frame,
+// 2-4 rows ahead ~170 µs, 1 or 8 rows ~180-190 µs).
 constexpr int kPrefetchRows = 3;
+
+#if defined(__x86_64__) || defined(__i386__)
+#define ROTOSCAN_HAVE_SSSE3_PATH 1
+namespace {
+// dst[i] = src[i * channels + channel] for i < pixels, channels 3 or 4.
+__attribute__((target("ssse3"))) void ChannelRowSsse3(const uint8_t* src, int pixels, int channels, int channel,
+                                                       uint8_t* dst) {
+  // Shuffle k takes from the k-th 16 source bytes the lanes of pixels 0..15 that lie there.
+  alignas(16) uint8_t masks[4][16];
+  for (int k = 0; k < channels; ++k) {
+    for (int lane = 0; lane < 16; ++lane) {
+      const int at = lane * channels + channel - 16 * k;
+      masks[k][lane] = at >= 0 && at < 16 ? static_cast<uint8_t>(at) : 0x80;
+    }
+  }
+  const __m128i m0 = _mm_load_si128(reinterpret_cast<const __m128i*>(masks[0]));
+  const __m128i m1 = _mm_load_si128(reinterpret_cast<const __m128i*>(masks[1]));
+  const __m128i m2 = _mm_load_si128(reinterpret_cast<const __m128i*>(masks[2]));
+  const __m128i m3 = _mm_load_si128(reinterpret_cast<const __m128i*>(masks[3]));
+  const int bytes = 16 * channels;
+  int i = 0;
+  for (; i + 16 <= pixels; i += 16, src += bytes) {
+    const __m128i* v = reinterpret_cast<const __m128i*>(src);
+    __m128i out = _mm_or_si128(_mm_shuffle_epi8(_mm_loadu_si128(v), m0),
+                               _mm_or_si128(_mm_shuffle_epi8(_mm_loadu_si128(v + 1), m1),
+                                            _mm_shuffle_epi8(_mm_loadu_si128(v + 2), m2)));
+    if (channels == 4) out = _mm_or_si128(out, _mm_shuffle_epi8(_mm_loadu_si128(v + 3), m3));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(dst + i), out);
+  }
+  for (int k = 0; i < pixels; ++i, ++k) dst[i] = src[k * channels + channel];
+}
+
+bool HaveSsse3() {
+  static const bool have = __builtin_cpu_supports("ssse3");
+  return have;
+}
+}  // namespace
+#endif
 
 Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line) {
   const ExtractOptions& o = options_;
   const int rows = on.rows;
   const int cols = on.cols;
-  const bool banded = on.channels() > 1;
+  const int channels = on.channels();
+  bool shuffled = false;  // color rows through ChannelRowSsse3
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  shuffled = channels > 1 && HaveSsse3();
+  if (shuffled) {
+    on_row_.resize(static_cast<size_t>(cols));
+    off_row_.resize(static_cast<size_t>(cols));
+  }
+#endif
+  const bool banded = channels > 1 && !shuffled;
   line->points.clear();
   line->stats = LineStats{};
   LineStats& stats = line->stats;
@@ -532,6 +588,22 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   for (int r = 0; r < rows; ++r) {
     const uint8_t* a;
     const uint8_t* b;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+    if (shuffled) {
+      if (r + kPrefetchRows < rows) {
+        const char* pa = reinterpret_cast<const char*>(on.ptr<uint8_t>(r + kPrefetchRows));
+        const char* pb = reinterpret_cast<const char*>(off.ptr<uint8_t>(r + kPrefetchRows));
+        for (int k = 0; k < cols * channels; k += 64) {
+          _mm_prefetch(pa + k, _MM_HINT_T0);
+          _mm_prefetch(pb + k, _MM_HINT_T0);
+        }
+      }
+      ChannelRowSsse3(on.ptr<uint8_t>(r), cols, channels, channel, on_row_.data());
+      ChannelRowSsse3(off.ptr<uint8_t>(r), cols, channels, channel, off_row_.data());
+      a = on_row_.data();
+      b = off_row_.data();
+    } else
+#endif
     if (banded) {
       if (r % kBandRows == 0) {
         const cv::Range band(r, std::min(rows, r + kBandRows));

@@ -130,6 +130,7 @@ class LineExtractor {
   std::vector<uint64_t> block_masks_;  // and bits of d >= threshold (bit k: pixel start + k)
   std::vector<float> raw_columns_;     // along-line smoothing: the centres before smoothing
   std::vector<cv::Mat> on_planes_, off_planes_;  // a band of color frames, split into channels
+  std::vector<uint8_t> on_row_, off_row_;        // or one row's laser channel of both (extract.cc)
   cv::Mat on_bgr_, off_bgr_;                     // demosaiced Bayer frames
 };
 
