@@ -582,6 +582,11 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   block_masks_.resize(static_cast<size_t>(cols) / 16 + 3);
   uint8_t* d = diff_.data() + kPad;
 
+  // The quality's factors (step 5), per frame.
+  const double quality_per_snr = stats.noise_dn > 0 ? 1.0 / (stats.noise_dn * std::max(1.0, 4 * o.min_snr)) : 0.0;
+  const double quality_per_contrast = 1.0 / std::max(1.0, 2.0 * threshold);
+  const double narrow_width = 1.5 * o.min_width_px, wide_width = o.max_width_px / 1.5;
+
   std::array<Candidate, 32> candidates;
   double previous_column = -1.0;
   int previous_row = -10;
@@ -775,10 +780,9 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     if (a[c.peak_pos] == 255) flags |= kFlagSaturated;
     if (c.first == 0 || c.last == cols - 1) flags |= kFlagClipped;
     double quality = 1.0;
-    if (stats.noise_dn > 0)
-      quality *= std::min(1.0, c.peak / (stats.noise_dn * std::max(1.0, 4 * o.min_snr)));
-    quality *= std::min(1.0, (c.peak - 0.5 * threshold) / std::max(1.0, 2.0 * threshold));
-    if (c.width < 1.5 * o.min_width_px || c.width > o.max_width_px / 1.5) quality *= 0.6;
+    if (stats.noise_dn > 0) quality *= std::min(1.0, c.peak * quality_per_snr);
+    quality *= std::min(1.0, (c.peak - 0.5 * threshold) * quality_per_contrast);
+    if (c.width < narrow_width || c.width > wide_width) quality *= 0.6;
     if (flags & kFlagMultiplePeaks) quality *= 0.5;
     if (flags & kFlagClipped) quality *= 0.3;
     LinePoint p;
@@ -889,6 +893,7 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     s0_sym += w;
     s2_sym += w * x * x;
   }
+  const double inv_s0_sym = 1.0 / s0_sym, inv_s2_sym = 1.0 / s2_sym;
   std::vector<double>& prefix = prefix_scratch();
   // The fast path's outlier candidates are bits x + h of one 64-bit word: the vector test (which may
   // run 3 lanes past the window) needs 2h + 4 <= 64; wider windows test one neighbour at a time.
@@ -934,8 +939,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
         // tri(v)(k) = sum_{u = k - h}^{k} box(v)[u]: u runs over the h + 1 box starts whose box covers k.
         const double t0 = qy[k + 1] - qy[k - h];
         const double t1 = (qjy[k + 1] - qjy[k - h]) - k * t0;
-        const double fa = t0 / s0_sym;
-        const double fb = order >= 1 ? t1 / s2_sym : 0.0;
+        const double fa = t0 * inv_s0_sym;
+        const double fb = order >= 1 ? t1 * inv_s2_sym : 0.0;
         const int i = start + k;
         // The neighbours the first fit may not explain, as bits of x + h: a float test, 4 at a time, with
         // a margin; each candidate is then decided in double as the general fit decides it, so the
