@@ -351,7 +351,7 @@ Result<CalibratedAccuracy> RunCalibratedPlaneAccuracy(const CalibratedAccuracyOp
                                 "\"position_mm\": [0, 25, 0], \"rotation_deg\": [-25, 0, 0]"};
     for (int p = 0; p < 3; ++p) {
       ROTOSCAN_RETURN_IF_ERROR(render(
-          p + 1, "{\"type\": \"checkerboard\", \"cols\": 9, \"rows\": 6, \"square_mm\": 7", placements[p],
+          p + 1, "{\"type\": \"checkerboard\", \"cols\": 15, \"rows\": 12, \"square_mm\": 4", placements[p],
           "table-board-" + std::to_string(p + 1), sim::SimulateKind::kTableCheckerboard));
     }
   }
