@@ -904,8 +904,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
   constexpr double kMargin = 1e-3;  // px; float rounding of columns < 10^4 px is < 1e-3 * 1e-3 px
   const __m128 limit_lo = _mm_set1_ps(static_cast<float>(outlier_px - kMargin));
-  const __m128 x_first = _mm_setr_ps(static_cast<float>(-h), static_cast<float>(-h + 1),
-                                     static_cast<float>(-h + 2), static_cast<float>(-h + 3));
+  float window_x[64 + 4];  // x = -h .. h + 3 (vector_test: 2h + 4 <= 64)
+  for (int k = 0; k < 64 + 4; ++k) window_x[k] = static_cast<float>(k - h);
 #endif
   auto smooth_stretch = [&](int start, int end) {
     const int len = end - start + 1;
@@ -949,13 +949,13 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
         uint64_t candidates = 0;
 #if defined(__SSE2__)
         if (vector_test) {
-          const __m128 slope4 = _mm_set1_ps(static_cast<float>(4.0 * fb));
-          __m128 fitted = _mm_add_ps(_mm_set1_ps(static_cast<float>(a_abs)),
-                                     _mm_mul_ps(x_first, _mm_set1_ps(static_cast<float>(fb))));
+          // The fitted values from the x of each lane (no chain of additions from vector to vector).
+          const __m128 base = _mm_set1_ps(static_cast<float>(a_abs));
+          const __m128 slope = _mm_set1_ps(static_cast<float>(fb));
           for (int x0 = -h; x0 <= h; x0 += 4) {
+            const __m128 fitted = _mm_add_ps(base, _mm_mul_ps(_mm_loadu_ps(window_x + (x0 + h)), slope));
             const __m128 r = _mm_and_ps(abs_mask, _mm_sub_ps(_mm_loadu_ps(raw + i + x0), fitted));
             candidates |= static_cast<uint64_t>(_mm_movemask_ps(_mm_cmpgt_ps(r, limit_lo))) << (x0 + h);
-            fitted = _mm_add_ps(fitted, slope4);
           }
           candidates &= window_bits;
         } else
