@@ -25,6 +25,8 @@
 #include <map>
 #include <memory>
 #include <ostream>
+#include <set>
+#include <sstream>
 #include <tuple>
 
 #include <Eigen/SVD>
@@ -218,6 +220,7 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
     // in the image (image quad, plane in the target frame) for the laser pixels.
     std::map<std::pair<int, int>, std::size_t> view_of;
     std::map<std::pair<int, int>, std::vector<calib::CalibrationObjectFace>> faces_of;
+    std::string not_found_reason;  // why the target was not found, in a frame where it was not
     int max_pose = 0;
     for (const bundle::LaserState state : {bundle::LaserState::kNatural, bundle::LaserState::kOff}) {
       for (const auto& frame : b.frames) {
@@ -232,7 +235,8 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
           Result<calib::CalibrationObjectCorners> found =
               calib::DetectCalibrationObject(To8Bit(image, bit_depth), object_spec);
           if (!found.ok()) {
-            ROTOSCAN_LOG(kWarning) << directory << "/" << frame.file << ": " << found.status().message();
+            ROTOSCAN_LOG(kDebug) << directory << "/" << frame.file << ": " << found.status().message();
+            not_found_reason = found.status().message();
             continue;
           }
           view.corners_in_target = std::move(found->corners_in_target);
@@ -242,7 +246,8 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
           Result<std::vector<Eigen::Vector2d>> corners =
               calib::DetectCheckerboard(To8Bit(image, bit_depth), *pattern);
           if (!corners.ok()) {
-            ROTOSCAN_LOG(kWarning) << directory << "/" << frame.file << ": " << corners.status().message();
+            ROTOSCAN_LOG(kDebug) << directory << "/" << frame.file << ": " << corners.status().message();
+            not_found_reason = corners.status().message();
             continue;
           }
           view.corners_in_target = board;
@@ -261,6 +266,25 @@ Result<calib::CalibrationData> ObservationsFromBundles(const std::vector<std::st
         faces_of[key] = std::move(faces);
         data.target_views.push_back(std::move(view));
         max_pose = std::max(max_pose, key.first);
+      }
+    }
+    // One line per bundle for the views without the target (each frame's reason is logged at debug level).
+    {
+      std::set<std::pair<int, int>> views;
+      for (const auto& frame : b.frames) {
+        if (frame.laser == bundle::LaserState::kNatural || frame.laser == bundle::LaserState::kOff)
+          views.emplace(std::max(frame.pose, 0), frame.step);
+      }
+      std::vector<int> missing;
+      for (const auto& key : views) {
+        if (view_of.count(key) == 0) missing.push_back(key.second);
+      }
+      if (!missing.empty()) {
+        std::ostringstream steps;
+        for (size_t k = 0; k < missing.size(); ++k) steps << (k > 0 ? " " : "") << missing[k];
+        ROTOSCAN_LOG(kWarning) << directory << ": target not found at " << missing.size() << " of "
+                               << views.size() << " views (steps " << steps.str() << "): " << not_found_reason
+                               << "; those views are left out (--log-level debug lists each frame)";
       }
     }
     // Laser pixels inside the board's outer corners, or inside a face of the object.

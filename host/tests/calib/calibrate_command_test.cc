@@ -10,6 +10,7 @@
 #include <opencv2/core/persistence.hpp>
 
 #include "command.h"
+#include "rotoscan/core/logging.h"
 #include "testing/testing.h"
 
 namespace rotoscan::cli {
@@ -18,6 +19,7 @@ namespace {
 using rotoscan::testing::DataPath;
 using rotoscan::testing::ScratchDir;
 using ::testing::HasSubstr;
+using ::testing::Not;
 
 struct CliRun {
   int code;
@@ -86,10 +88,18 @@ TEST(CalibrateCommandTest, TargetNeverFoundSaysWhatToCapture) {
   const std::string bundle = (dir / "bundle").string();
   CliRun r = Call({"simulate", scene, "--kind", "table-checkerboard", "--steps", "3", "--out", bundle});
   ASSERT_EQ(r.code, kExitOk) << r.err;
+  std::string warnings;
+  SetLogSink([&](LogLevel level, const std::string& message) {
+    if (level == LogLevel::kWarning) warnings += message + "\n";
+  });
   r = Call({"calibrate", bundle, "--out", (dir / "calib.yaml").string()});
+  SetLogSink(nullptr);
   EXPECT_EQ(r.code, kExitFailure);
   EXPECT_THAT(r.err, HasSubstr("target was not found in any view"));
   EXPECT_THAT(r.err, HasSubstr("whole target is in view"));
+  // One warning line for the bundle, naming the steps, not one per frame.
+  EXPECT_THAT(warnings, HasSubstr("target not found at 3 of 3 views (steps 0 1 2)"));
+  EXPECT_THAT(warnings, Not(HasSubstr("natural.png")));
   EXPECT_FALSE(std::filesystem::exists(dir / "calib.yaml"));
 }
 
