@@ -64,6 +64,21 @@ LineSpec WeakWide() {
 }
 
 // The measurement behind the default estimator (see extract.cc); prints the table, asserts the bounds.
+// Runs `body` with every set of x86 vector extensions the extractor may use (all paths give the same
+// result), then allows them all again.
+template <typename Body>
+void ForEachVectorPath(Body body) {
+  for (bool wide : {true, false}) {
+    SCOPED_TRACE(wide ? "AVX2 and SSSE3 allowed" : "SSE2 only");
+    internal::AllowVectorExtensions(wide, wide);
+    body();
+  }
+  internal::AllowVectorExtensions(true, true);
+}
+
+void RowScanFindsTheLineAtEveryColumnOfEveryWidth();
+void ColorInputEqualsItsChannelAsGray();
+
 TEST(ExtractTest, EstimatorComparison) {
   const std::pair<const char*, LineSpec> cases[] = {{"gaussian sigma 1.2, 150 DN", NarrowGaussian()},
                                                     {"flat-top ~12 px, saturated", SaturatedFlatTop()},
@@ -213,6 +228,10 @@ TEST(ExtractTest, ColorChannelsAndLayouts) {
 // channel, and widths that end with a partial 16-pixel block (the channel is pulled out per row with byte
 // shuffles on x86, by banded cv::split elsewhere).
 TEST(ExtractTest, ColorInputEqualsItsChannelAsGray) {
+  ForEachVectorPath([] { ColorInputEqualsItsChannelAsGray(); });
+}
+
+void ColorInputEqualsItsChannelAsGray() {
   for (int width : {7, 37, 1288}) {
     cv::Mat on, off;
     MakePair(
@@ -460,6 +479,10 @@ TEST(SmoothAlongLineTest, ParabolaFollowsACurvedLineAndOptionsAreChecked) {
 // overlapping block, images under 16 pixels take the portable path, and a line may straddle two blocks.
 // A noise-free narrow line at every one of these places must come out where it is, once per row.
 TEST(ExtractTest, RowScanFindsTheLineAtEveryColumnOfEveryWidth) {
+  ForEachVectorPath([] { RowScanFindsTheLineAtEveryColumnOfEveryWidth(); });
+}
+
+void RowScanFindsTheLineAtEveryColumnOfEveryWidth() {
   LineSpec spec = NarrowGaussian();
   spec.noise = 0.0;
   ExtractOptions options;

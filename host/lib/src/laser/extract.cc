@@ -74,6 +74,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -86,6 +87,7 @@
 #include <emmintrin.h>
 #include <xmmintrin.h>
 #if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
 #include <tmmintrin.h>
 #endif
 #endif
@@ -546,12 +548,55 @@ __attribute__((target("ssse3"))) void ChannelRowSsse3(const uint8_t* src, int pi
   for (int k = 0; i < pixels; ++i, ++k) dst[i] = src[k * channels + channel];
 }
 
+// Step 1 of the row pass (see ExtractRows) over the row's whole 64-pixel groups, 32 pixels per
+// instruction; returns the number of groups pushed and where it stopped.
+__attribute__((target("avx2"))) inline uint64_t HalfGroupAvx2(const uint8_t* a, const uint8_t* b, uint8_t* d,
+                                                              __m256i t) {
+  const __m256i v = _mm256_subs_epu8(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(a)),
+                                     _mm256_loadu_si256(reinterpret_cast<const __m256i*>(b)));
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(d), v);
+  return static_cast<uint32_t>(_mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(v, t), v)));
+}
+__attribute__((target("avx2"))) int RowGroupsAvx2(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols,
+                                                  int threshold, int* starts, uint64_t* masks, int* next) {
+  const __m256i t = _mm256_set1_epi8(static_cast<char>(threshold));
+  int count = 0;
+  int i0 = 0;
+  for (; i0 + 64 <= cols; i0 += 64) {
+    const uint64_t mask =
+        HalfGroupAvx2(a + i0, b + i0, d + i0, t) | HalfGroupAvx2(a + i0 + 32, b + i0 + 32, d + i0 + 32, t) << 32;
+    starts[count] = i0;
+    masks[count] = mask;
+    count += mask != 0;
+  }
+  *next = i0;
+  return count;
+}
+
+std::atomic<bool> allow_avx2{true}, allow_ssse3{true};
+
 bool HaveSsse3() {
   static const bool have = __builtin_cpu_supports("ssse3");
-  return have;
+  return have && allow_ssse3.load(std::memory_order_relaxed);
+}
+bool HaveAvx2() {
+  static const bool have = __builtin_cpu_supports("avx2");
+  return have && allow_avx2.load(std::memory_order_relaxed);
 }
 }  // namespace
 #endif
+
+namespace internal {
+void AllowVectorExtensions(bool avx2, bool ssse3) {
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  allow_avx2.store(avx2);
+  allow_ssse3.store(ssse3);
+#else
+  (void)avx2;
+  (void)ssse3;
+#endif
+}
+}  // namespace internal
 
 Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line) {
   const ExtractOptions& o = options_;
@@ -567,6 +612,9 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   }
 #endif
   const bool banded = channels > 1 && !shuffled;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  const bool avx2 = HaveAvx2();  // the row pass 32 pixels at a time
+#endif
   line->points.clear();
   line->stats = LineStats{};
   LineStats& stats = line->stats;
@@ -646,6 +694,9 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
         block_count += mask != 0;
       };
       int i0 = 0;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+      if (avx2) block_count = RowGroupsAvx2(a, b, d, cols, threshold, starts, masks, &i0);
+#endif
 #if defined(__SSE2__)
       const __m128i t = _mm_set1_epi8(static_cast<char>(threshold));
       auto block = [&](int at) -> uint64_t {

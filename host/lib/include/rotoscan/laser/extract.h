@@ -147,6 +147,12 @@ Result<Line> ExtractLine(const cv::Mat& on, const cv::Mat& off, const ExtractOpt
 // column, or a negative value when the estimator fails (e.g. a flat profile).
 double EstimateCentre(Estimator estimator, const uint8_t* diff, int size, int first, int last, int peak);
 
+namespace internal {
+// For tests: which x86 vector extensions the extractor may use when the CPU has them (both by default).
+// Every path gives the same result; tests run each.
+void AllowVectorExtensions(bool avx2, bool ssse3);
+}  // namespace internal
+
 // Reads an 8-bit image file (PNG, JPEG, ... as OpenCV decodes it, channels as stored: BGR for color).
 // kNotFound if missing, kCorruptData if it does not decode, kInvalidArgument if it is not 8-bit.
 Result<cv::Mat> ReadImage8(const std::filesystem::path& path);
