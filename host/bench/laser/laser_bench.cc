@@ -12,13 +12,15 @@
 //   BM_HorusBaselineBgr                the same on color frames (subtract the color images, split, red),
 //                                      as Horus runs with a color camera: compare with BM_ExtractBgr
 //   BM_OpenCvTunedBaseline             the same with a per-row window loop (faster than Horus; reported too)
-//   BM_StreamRead                      the memory-bandwidth bound: a plain streaming read of the same bytes
-//                                      (both frames), i.e. the fastest any single-pass extractor could go;
-//   BM_StreamReadBgr                   the same bound for the color frames of BM_ExtractBgr
+//   BM_StreamRead/<order>              the memory-bandwidth bound: a plain read of the same bytes (both
+//                                      frames) in three orders (0 frame after frame, 1 row by row through
+//                                      both, 2 the same prefetched); the fastest is the bound, i.e. the
+//                                      fastest any single-pass extractor could go
+//   BM_StreamReadBgr/<order>           the same bound for the color frames of BM_ExtractBgr
 //
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
 // 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows.
-// Run: build/host/bench/laser/laser_bench --benchmark_counters_tabular=true
+// Run: build/host/bench/laser/laser_bench --benchmark_repetitions=5 (medians; on an idle machine)
 #include <benchmark/benchmark.h>
 #include <emmintrin.h>
 
