@@ -635,6 +635,17 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   const double quality_per_contrast = 1.0 / std::max(1.0, 2.0 * threshold);
   const double narrow_width = 1.5 * o.min_width_px, wide_width = o.max_width_px / 1.5;
 
+  // Both frames' row kPrefetchRows ahead of row r, read from memory while row r is worked on.
+  auto prefetch_ahead = [&](int r) {
+    if (r + kPrefetchRows >= rows) return;
+    const char* pa = reinterpret_cast<const char*>(on.ptr<uint8_t>(r + kPrefetchRows));
+    const char* pb = reinterpret_cast<const char*>(off.ptr<uint8_t>(r + kPrefetchRows));
+    for (int k = 0; k < cols * channels; k += 64) {
+      __builtin_prefetch(pa + k);
+      __builtin_prefetch(pb + k);
+    }
+  };
+
   std::array<Candidate, 32> candidates;
   double previous_column = -1.0;
   int previous_row = -10;
@@ -643,14 +654,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     const uint8_t* b;
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
     if (shuffled) {
-      if (r + kPrefetchRows < rows) {
-        const char* pa = reinterpret_cast<const char*>(on.ptr<uint8_t>(r + kPrefetchRows));
-        const char* pb = reinterpret_cast<const char*>(off.ptr<uint8_t>(r + kPrefetchRows));
-        for (int k = 0; k < cols * channels; k += 64) {
-          _mm_prefetch(pa + k, _MM_HINT_T0);
-          _mm_prefetch(pb + k, _MM_HINT_T0);
-        }
-      }
+      prefetch_ahead(r);
       ChannelRowSsse3(on.ptr<uint8_t>(r), cols, channels, channel, on_row_.data());
       ChannelRowSsse3(off.ptr<uint8_t>(r), cols, channels, channel, off_row_.data());
       a = on_row_.data();
@@ -668,16 +672,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     } else {
       a = on.ptr<uint8_t>(r);
       b = off.ptr<uint8_t>(r);
-#if defined(__SSE2__)
-      if (r + kPrefetchRows < rows) {
-        const char* pa = reinterpret_cast<const char*>(on.ptr<uint8_t>(r + kPrefetchRows));
-        const char* pb = reinterpret_cast<const char*>(off.ptr<uint8_t>(r + kPrefetchRows));
-        for (int k = 0; k < cols; k += 64) {
-          _mm_prefetch(pa + k, _MM_HINT_T0);
-          _mm_prefetch(pb + k, _MM_HINT_T0);
-        }
-      }
-#endif
+      prefetch_ahead(r);
     }
     // Step 1: saturating difference, and the 64-pixel groups that hold a pixel >= threshold, compacted
     // into (start, bit mask) pairs without a branch. Nothing else is read per pixel, so a row without
