@@ -525,7 +525,7 @@ __attribute__((target("ssse3"))) void ChannelRowSsse3(const uint8_t* src, int pi
                                                        uint8_t* dst) {
   // Shuffle k takes from the k-th 16 source bytes the lanes of pixels 0..15 that lie there.
   alignas(16) uint8_t masks[4][16];
-  for (int k = 0; k < channels; ++k) {
+  for (int k = 0; k < 4; ++k) {  // all four (the fourth is unused for 3 channels)
     for (int lane = 0; lane < 16; ++lane) {
       const int at = lane * channels + channel - 16 * k;
       masks[k][lane] = at >= 0 && at < 16 ? static_cast<uint8_t>(at) : 0x80;
