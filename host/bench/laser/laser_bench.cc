@@ -25,6 +25,7 @@
 #include <emmintrin.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <string>
 #include <vector>
 
@@ -138,6 +139,50 @@ BENCHMARK(BM_ExtractTriangulate)
     ->ArgsProduct({{0, 1, 2, 3}, {1}})
     ->Args({0, 0})
     ->Unit(benchmark::kMicrosecond);
+
+// The parts of BM_ExtractTriangulate/0/1 alone, on the lines it extracts (per row, then copied each
+// iteration): the along-line smoothing, and the triangulation.
+std::vector<rotoscan::laser::Line> PerRowLines() {
+  const Frames& f = GrayFrames();
+  rotoscan::laser::ExtractOptions options;
+  options.smooth_half_rows = 0;
+  std::vector<rotoscan::laser::Line> lines(f.on.size());
+  for (size_t i = 0; i < f.on.size(); ++i) {
+    const rotoscan::Status status = rotoscan::laser::LineExtractor(options).Extract(f.on[i], f.off[i], &lines[i]);
+    if (!status.ok()) std::abort();
+  }
+  return lines;
+}
+void BM_SmoothOnly(benchmark::State& state) {
+  const std::vector<rotoscan::laser::Line> lines = PerRowLines();
+  const rotoscan::laser::ExtractOptions o;
+  std::vector<rotoscan::laser::LinePoint> points;
+  std::vector<float> scratch;
+  size_t i = 0;
+  for (auto _ : state) {
+    points = lines[i].points;
+    rotoscan::laser::SmoothAlongLine(&points, o.smooth_half_rows, o.smooth_order, o.smooth_max_jump_px,
+                                     o.smooth_outlier_px, &scratch);
+    benchmark::DoNotOptimize(points.data());
+    i = (i + 1) % lines.size();
+  }
+  state.counters["frames_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_SmoothOnly)->Unit(benchmark::kMicrosecond);
+void BM_TriangulateOnly(benchmark::State& state) {
+  const std::vector<rotoscan::laser::Line> lines = PerRowLines();
+  static const rotoscan::laser::Triangulator triangulator(Camera());
+  std::vector<Eigen::Vector3d> points;
+  std::vector<int> kept;
+  size_t i = 0;
+  for (auto _ : state) {
+    triangulator.Triangulate(lines[i], Laser(), &points, &kept);
+    benchmark::DoNotOptimize(points.data());
+    i = (i + 1) % lines.size();
+  }
+  state.counters["frames_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_TriangulateOnly)->Unit(benchmark::kMicrosecond);
 
 void BM_ExtractBgr(benchmark::State& state) {
   const Frames& f = BgrFrames();

@@ -1,8 +1,11 @@
 #include "rotoscan/laser/extract.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
@@ -587,43 +590,73 @@ TEST(ExtractTest, CentreOfMassMatchesItsDefinition) {
   }
 }
 
+// Stretches as the definition says (SmoothAlongLine): consecutive rows, column steps <= max_jump_px.
+// Returns [start, end] pairs.
+std::vector<std::pair<int, int>> DefiningStretches(const std::vector<LinePoint>& raw, double max_jump_px) {
+  const int n = static_cast<int>(raw.size());
+  std::vector<std::pair<int, int>> stretches;
+  int start = 0;
+  while (start < n) {
+    int end = start;
+    while (end + 1 < n && raw[end + 1].row == raw[end].row + 1 &&
+           std::abs(raw[end + 1].column - raw[end].column) <= max_jump_px)
+      ++end;
+    stretches.emplace_back(start, end);
+    start = end + 1;
+  }
+  return stretches;
+}
+
+// Every point against the direct weighted least-squares fit of its definition, on a line with a gap, a
+// depth edge, wrong peaks, a part slanted by 1.4 to 3 px per row (steps around the jump limit: many
+// short stretches) and a strongly curved part (the first fit misses its window's ends: many second
+// fits), for every order and for windows within and beyond the 64-bit outlier masks; and the same
+// result to the bit on every vector path.
 TEST(SmoothAlongLineTest, MatchesTheDefiningWeightedFit) {
   std::mt19937 rng(7);
   std::normal_distribution<double> noise(0.0, 0.15);
   std::vector<LinePoint> raw;
-  for (int r = 0; r < 700; ++r) {
+  for (int r = 0; r < 900; ++r) {
     if (r >= 300 && r < 304) continue;  // a gap
     LinePoint p;
     p.row = r;
     double c = 500.0 + 0.6 * r + 0.004 * (r - 350.0) * (r - 350.0) / 10.0 + noise(rng);
     if (r >= 450) c += 6.0;                    // a depth edge
     if (r % 97 == 0) c += (r % 2 ? 0.9 : -1.2);  // wrong peaks inside stretches
+    c += (0.8 + 0.8 * (r - 500) / 100.0) * std::clamp(r - 500, 0, 100);  // slanted
+    if (r >= 700) c += 20.0 * std::sin((r - 700) * 0.05);  // curved
     p.column = static_cast<float>(c);
     raw.push_back(p);
   }
+  const std::vector<std::pair<int, int>> stretches = DefiningStretches(raw, 1.5);
+  int short_stretches = 0;  // the general fit's case
+  for (const auto& [start, end] : stretches) short_stretches += end - start + 1 < 2 * 12 + 1;
+  EXPECT_GT(short_stretches, 10);
   std::vector<float> scratch;
   for (int order : {0, 1, 2}) {
-    for (int h : {3, 12}) {
-      std::vector<LinePoint> points = raw;
-      SmoothAlongLine(&points, h, order, 1.5, 0.5, &scratch);
-      // Stretches as the definition says: consecutive rows, column steps <= 1.5 px.
-      int start = 0;
-      const int n = static_cast<int>(raw.size());
+    for (int h : {3, 12, 40}) {
+      std::vector<std::vector<LinePoint>> results;
+      ForEachVectorPath([&] {
+        std::vector<LinePoint> points = raw;
+        SmoothAlongLine(&points, h, order, 1.5, 0.5, &scratch);
+        results.push_back(points);
+      });
+      const std::vector<LinePoint>& points = results[0];
+      for (size_t path = 1; path < results.size(); ++path) {
+        for (size_t i = 0; i < points.size(); ++i) {
+          ASSERT_EQ(results[path][i].column, points[i].column) << "path " << path << " point " << i;
+        }
+      }
       double worst = 0;
-      while (start < n) {
-        int end = start;
-        while (end + 1 < n && raw[end + 1].row == raw[end].row + 1 &&
-               std::abs(raw[end + 1].column - raw[end].column) <= 1.5)
-          ++end;
+      for (const auto& [start, end] : stretches) {
         for (int i = start; i <= end; ++i) {
           const int lo = std::max(start, i - h), hi = std::min(end, i + h);
           if (lo == hi) continue;
           const double expected = DirectSmoothedColumn(raw, i, lo, hi, h, order, 0.5);
           worst = std::max(worst, std::abs(points[static_cast<size_t>(i)].column - expected));
         }
-        start = end + 1;
       }
-      EXPECT_LT(worst, 2e-4) << "order " << order << " h " << h;  // float columns: ~6e-5 px at 500 px
+      EXPECT_LT(worst, 3e-4) << "order " << order << " h " << h;  // float columns: ~1.2e-4 px at 1300 px
     }
   }
 }
