@@ -303,7 +303,8 @@ double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
 // The along-line smoothing's outlier screen (SmoothAlongLine): for each point k in [k0, k1) of a stretch,
 // bit k - k0 of `bits` (zeroed by the caller) is set when some neighbour x in [-h, h], x != 0, may lie
 // further than `limit` from the point's first fit af[k] + x bf[k], i.e. |rel[k + x] - af[k] - x bf[k]|
-// > limit. All columns relative to the stretch's first one. Points are taken in groups of `lanes` (8 with
+// > limit; NaN entries of rel (outside the stretch) are skipped. All columns relative to the stretch's
+// first one. Points are taken in groups of `lanes` (8 with
 // AVX2, 4 with SSE2, 1 otherwise): the last group computes on up to 7 entries past k1 of af and bf and
 // reads rel up to k1 + h + 6, and may set bits past k1 - k0, which the caller ignores. In float, so
 // the caller's limit carries a margin for the rounding and each flagged point is decided exactly: the
@@ -321,7 +322,8 @@ void ScreenWindows(const float* rel, const float* af, const float* bf, int k0, i
       const __m128 xb = _mm_mul_ps(_mm_set1_ps(static_cast<float>(x)), b);
       const __m128 right = _mm_sub_ps(_mm_loadu_ps(rel + k + x), _mm_add_ps(a, xb));
       const __m128 left = _mm_sub_ps(_mm_loadu_ps(rel + k - x), _mm_sub_ps(a, xb));
-      worst = _mm_max_ps(worst, _mm_max_ps(_mm_and_ps(abs_mask, right), _mm_and_ps(abs_mask, left)));
+      worst = _mm_max_ps(_mm_and_ps(abs_mask, right), worst);  // a NaN residual leaves worst as is
+      worst = _mm_max_ps(_mm_and_ps(abs_mask, left), worst);
     }
     const uint64_t m = static_cast<uint32_t>(_mm_movemask_ps(_mm_cmpgt_ps(worst, lim)));
     bits[(k - k0) >> 6] |= m << ((k - k0) & 63);
@@ -661,7 +663,8 @@ __attribute__((target("avx2"))) void ScreenWindowsAvx2(const float* rel, const f
       const __m256 xb = _mm256_mul_ps(_mm256_set1_ps(static_cast<float>(x)), b);
       const __m256 right = _mm256_sub_ps(_mm256_loadu_ps(rel + k + x), _mm256_add_ps(a, xb));
       const __m256 left = _mm256_sub_ps(_mm256_loadu_ps(rel + k - x), _mm256_sub_ps(a, xb));
-      worst = _mm256_max_ps(worst, _mm256_max_ps(_mm256_and_ps(abs_mask, right), _mm256_and_ps(abs_mask, left)));
+      worst = _mm256_max_ps(_mm256_and_ps(abs_mask, right), worst);  // a NaN residual leaves worst as is
+      worst = _mm256_max_ps(_mm256_and_ps(abs_mask, left), worst);
     }
     const uint64_t m = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(worst, lim, _CMP_GT_OQ)));
     bits[(k - k0) >> 6] |= m << ((k - k0) & 63);
@@ -977,11 +980,17 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   const int n = static_cast<int>(points->size());
   if (half_rows == 0 || n < 2) return;
   LinePoint* p = points->data();
-  // The raw columns, then the fast path's floats per stretch (at most n points each): the columns
-  // relative to the stretch's first and the first fit's a and b, 8 entries of padding after each for the
-  // screen's last group.
-  scratch->resize(4 * static_cast<size_t>(n) + 24);
-  float* raw = scratch->data();
+  // Floats: the raw columns, then per stretch (at most n points) the columns relative to the stretch's
+  // first and the first fit's a and b. Padding (pad = h + 8 entries) around raw and rel, for the vector
+  // outlier tests' reads past a window's ends (read, then masked), and after af and bf, for the screen's
+  // last group.
+  const size_t pad = static_cast<size_t>(half_rows) + 8;
+  const size_t un = static_cast<size_t>(n);
+  scratch->assign(4 * pad + 4 * un + 16, 0.0f);
+  float* raw = scratch->data() + pad;
+  float* rel = raw + un + 2 * pad;
+  float* af = rel + un + pad;
+  float* bf = af + un + 8;
   for (int i = 0; i < n; ++i) raw[i] = p[i].column;
   // Weighted least-squares polynomial c(x) = a + b x (+ q x^2 for degree 2) through the neighbours j of
   // point i, x = j - i (a stretch has consecutive rows), triangular weight half_rows + 1 - |x|; the
@@ -1046,24 +1055,27 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   auto robust_fit = [&](int i, int lo, int hi) {
     return robust_fit_from(i, lo, hi, fit(i, lo, hi, [](int) { return true; }));
   };
-  // Fast path for a point whose window [i - h, i + h] lies inside its stretch, for order 0 and 1 (the
-  // common case: all but 2h points of each stretch). The window is symmetric, so the odd moment s1
-  // vanishes and the fit is a = t0 / s0, b = t1 / s2, with t0 = sum w y and t1 = sum w x y over the
-  // triangular weights w = h + 1 - |x|. A triangle of half-width h is a box of h + 1 taps convolved with
-  // itself, and t1 = tri(j y_j)(i) - i tri(y)(i), so both come from prefix sums in O(1) per point (the
-  // direct sums cost 2h + 1 dependent additions each). Columns are taken relative to the stretch's first
-  // column to keep the sums small. When a neighbour fails the outlier test, the general fit decides.
+  // Order 0 and 1 (the default): every fit from prefix sums in O(1). With j the index in the stretch and
+  // y the column relative to the stretch's first, the sums of the fit of point k over x in [xa, xb]
+  // (j = k + x) split at x = 0 into a left part with w = h + 1 + x and a right part with w = h + 1 - x,
+  // and each part's sum w y and w x y comes from the range sums of y, j y and j^2 y (x = j - k). The
+  // weights' sums s0, s1, s2 are integers, from running sums over x. A second fit whose kept neighbours
+  // are again a range around the point (outliers at the window's ends: a curved line) is O(1) the same
+  // way; other second fits subtract the outliers' terms from the first's sums.
   const int h = half_rows;
-  const int box = h + 1;
-  double s0_sym = 0, s2_sym = 0;
-  for (int x = -h; x <= h; ++x) {
-    const double w = h + 1 - std::abs(x);
-    s0_sym += w;
-    s2_sym += w * x * x;
-  }
-  const double inv_s0_sym = 1.0 / s0_sym, inv_s2_sym = 1.0 / s2_sym;
   std::vector<double>& prefix = prefix_scratch();
   std::vector<uint64_t>& bits = screen_scratch();
+  std::array<double, 3> weight_sums{};  // sums of w, w x, w x^2 over x = -h .. x - 1, at index x + h
+  std::vector<std::array<double, 3>> cumulative(static_cast<size_t>(2 * h + 2));
+  for (int x = -h; x <= h; ++x) {
+    cumulative[static_cast<size_t>(x + h)] = weight_sums;
+    const double w = h + 1 - std::abs(x);
+    weight_sums[0] += w;
+    weight_sums[1] += w * x;
+    weight_sums[2] += w * x * x;
+  }
+  cumulative[static_cast<size_t>(2 * h + 1)] = weight_sums;
+  const double inv_s0_whole = 1.0 / weight_sums[0], inv_s2_whole = 1.0 / weight_sums[2];
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
   const bool avx2 = HaveAvx2();
 #endif
@@ -1072,135 +1084,166 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   const bool vector_test = 2 * h + 1 <= 64;
   std::array<double, 64 + 4> window_x;
   for (int k = 0; k < 64 + 4; ++k) window_x[static_cast<size_t>(k)] = k - h;
+  struct Sums {
+    double s0, s1, s2, t0, t1;
+  };
   auto smooth_stretch = [&](int start, int end) {
     const int len = end - start + 1;
+    if (len < 2) return;
+    if (order == 2) {
+      for (int i = start; i <= end; ++i) {
+        p[i].column = static_cast<float>(robust_fit(i, std::max(start, i - h), std::min(end, i + h)));
+      }
+      return;
+    }
     const double origin = raw[start];
-    const bool fast = order <= 1 && len >= 2 * h + 1;
-    if (fast) {
-      // Doubles: P_y, P_jy (prefix sums of y and j y, j from the stretch start), the prefix sums Q of
-      // their box sums over box taps starting at each index, then per point t0, t1 and the first fit
-      // (a absolute, b). Floats: the columns relative to the stretch's first and the first fit (a
-      // relative, b), each with 8 entries of padding for the screen's last group.
-      const size_t m = static_cast<size_t>(len);
-      prefix.resize(8 * (m + 1));  // every entry read is written before, the zeros below included
-      double* py = prefix.data();
-      double* pjy = py + (m + 1);
-      double* qy = pjy + (m + 1);
-      double* qjy = qy + (m + 1);
-      double* t0s = qjy + (m + 1);
-      double* t1s = t0s + (m + 1);
-      double* fit_a = t1s + (m + 1);
-      double* fit_b = fit_a + (m + 1);
-      float* rel = raw + n;
-      float* af = rel + m + 8;
-      float* bf = af + m + 8;
-      // The sums run in registers (a store and reload per step would put store forwarding on each chain).
-      double sy = 0, sjy = 0, sqy = 0, sqjy = 0, max_rel = 0;
-      py[0] = pjy[0] = qy[0] = qjy[0] = 0.0;
-      for (int k = 0; k < len; ++k) {
-        const double y = raw[start + k] - origin;
-        rel[k] = static_cast<float>(y);
-        max_rel = std::max(max_rel, std::abs(y));
-        sy += y;
-        sjy += k * y;
-        py[k + 1] = sy;
-        pjy[k + 1] = sjy;
-        const int u = k + 1 - box;  // the box sum over [u, u + h] is complete
-        if (u >= 0) {
-          sqy += sy - py[u];
-          sqjy += sjy - pjy[u];
-          qy[u + 1] = sqy;
-          qjy[u + 1] = sqjy;
-        }
+    const size_t m = static_cast<size_t>(len);
+    prefix.resize(5 * (m + 1));
+    double* py = prefix.data();  // sums over j < index of y, j y, j^2 y
+    double* pjy = py + (m + 1);
+    double* pjjy = pjy + (m + 1);
+    double* fit_a = pjjy + (m + 1);  // the first fit, a absolute
+    double* fit_b = fit_a + (m + 1);
+    // The sums run in registers (a store and reload per step would put store forwarding on each chain).
+    double sy = 0, sjy = 0, sjjy = 0, max_rel = 0;
+    py[0] = pjy[0] = pjjy[0] = 0.0;
+    for (int k = 0; k < len; ++k) {
+      const double y = raw[start + k] - origin;
+      rel[k] = static_cast<float>(y);
+      max_rel = std::max(max_rel, std::abs(y));
+      sy += y;
+      sjy += k * y;
+      sjjy += static_cast<double>(k) * k * y;
+      py[k + 1] = sy;
+      pjy[k + 1] = sjy;
+      pjjy[k + 1] = sjjy;
+    }
+    // Outside the stretch the screen reads NaN, which its maxima skip: its windows end where the
+    // stretch does.
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    std::fill(rel - pad, rel, nan);
+    std::fill(rel + len, rel + len + pad, nan);
+    auto window = [&](int k, int* xa, int* xb) {
+      *xa = std::max(-h, -k);
+      *xb = std::min(h, len - 1 - k);
+    };
+    auto range_sums = [&](int k, int xa, int xb) {
+      const std::array<double, 3>& hi = cumulative[static_cast<size_t>(xb + h + 1)];
+      const std::array<double, 3>& lo = cumulative[static_cast<size_t>(xa + h)];
+      const double kd = k;
+      const double ly = py[k] - py[k + xa], ljy = pjy[k] - pjy[k + xa], ljjy = pjjy[k] - pjjy[k + xa];
+      const double ry = py[k + xb + 1] - py[k], rjy = pjy[k + xb + 1] - pjy[k], rjjy = pjjy[k + xb + 1] - pjjy[k];
+      const double lxy = ljy - kd * ly, lxxy = ljjy - 2 * kd * ljy + kd * kd * ly;
+      const double rxy = rjy - kd * ry, rxxy = rjjy - 2 * kd * rjy + kd * kd * ry;
+      const double hp = h + 1;
+      return Sums{hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], hp * (ly + ry) + lxy - rxy, hp * (lxy + rxy) + lxxy - rxxy};
+    };
+    // a (relative) and b of the fit with these sums, as the general fit solves it.
+    auto solve = [&](const Sums& u, double* fa, double* fb) {
+      const double det = u.s0 * u.s2 - u.s1 * u.s1;
+      if (order >= 1 && det > 1e-9 * u.s0 * u.s2) {
+        const double inverse = 1.0 / det;
+        *fa = (u.s2 * u.t0 - u.s1 * u.t1) * inverse;
+        *fb = (u.s0 * u.t1 - u.s1 * u.t0) * inverse;
+      } else {
+        *fa = u.t0 / u.s0;
+        *fb = 0.0;
       }
-      double max_b = 0;
-      for (int k = h; k + h < len; ++k) {
-        // tri(v)(k) = sum_{u = k - h}^{k} box(v)[u]: u runs over the h + 1 box starts whose box covers k.
-        const double t0 = qy[k + 1] - qy[k - h];
-        const double t1 = (qjy[k + 1] - qjy[k - h]) - k * t0;
-        const double fa = t0 * inv_s0_sym;
-        const double fb = order >= 1 ? t1 * inv_s2_sym : 0.0;
-        t0s[k] = t0;
-        t1s[k] = t1;
-        fit_a[k] = fa + origin;
-        fit_b[k] = fb;
-        af[k] = static_cast<float>(fa);
-        bf[k] = static_cast<float>(fb);
-        max_b = std::max(max_b, std::abs(fb));
+    };
+    double max_b = 0;
+    for (int k = 0; k < len; ++k) {
+      int xa, xb;
+      window(k, &xa, &xb);
+      double fa, fb;
+      const Sums u = range_sums(k, xa, xb);
+      if (xa == -h && xb == h) {  // a whole window: s1 = 0, no division
+        fa = u.t0 * inv_s0_whole;
+        fb = order >= 1 ? u.t1 * inv_s2_whole : 0.0;
+      } else {
+        solve(u, &fa, &fb);
       }
-      // The screen: which points' windows may hold a neighbour the first fit does not explain. Its float
-      // residuals are off from the double ones by a few ulp of the largest value involved; the margin
-      // covers 16, so every point the exact test finds an outlier for is flagged.
-      const double magnitude = max_rel + h * max_b + outlier_px + 1.0;
-      const double margin = 1e-3 + 16.0 * std::numeric_limits<float>::epsilon() * magnitude;
-      const float limit = static_cast<float>(outlier_px - margin);
-      const int k0 = h, k1 = len - h;
-      const size_t words = static_cast<size_t>(k1 - k0) / 64 + 1;
-      bits.assign(words + m, 0);  // the screen's bits, then the flagged points' outlier bits
-      uint64_t* flagged = bits.data();
-      uint64_t* outliers = flagged + words - k0;  // [k]
+      fit_a[k] = fa + origin;
+      fit_b[k] = fb;
+      af[k] = static_cast<float>(fa);
+      bf[k] = static_cast<float>(fb);
+      max_b = std::max(max_b, std::abs(fb));
+    }
+    // The screen: which points' windows may hold a neighbour the first fit does not explain. Its float
+    // residuals are off from the double ones by a few ulp of the largest value involved; the margin
+    // covers 16, so every point the exact test finds an outlier for is flagged.
+    const double magnitude = max_rel + h * max_b + outlier_px + 1.0;
+    const double margin = 1e-3 + 16.0 * std::numeric_limits<float>::epsilon() * magnitude;
+    const float limit = static_cast<float>(outlier_px - margin);
+    const size_t words = m / 64 + 1;
+    bits.assign(words + m, 0);  // the screen's bits, then the flagged points' outlier bits
+    uint64_t* flagged = bits.data();
+    uint64_t* outliers = flagged + words;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+    if (avx2) {
+      ScreenWindowsAvx2(rel, af, bf, 0, len, h, limit, flagged);
+    } else
+#endif
+    {
+      ScreenWindows(rel, af, bf, 0, len, h, limit, flagged);
+    }
+    if (vector_test) {  // the exact test of the flagged points, before the window's ends are masked
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
       if (avx2) {
-        ScreenWindowsAvx2(rel, af, bf, k0, k1, h, limit, flagged);
+        FlaggedOutliersAvx2(raw + start, fit_a, fit_b, 0, len, h, outlier_px, flagged, window_x.data(), outliers);
       } else
 #endif
       {
-        ScreenWindows(rel, af, bf, k0, k1, h, limit, flagged);
+        FlaggedOutliers(raw + start, fit_a, fit_b, 0, len, h, outlier_px, flagged, window_x.data(), outliers);
       }
-      // The exact test of the flagged points (OutlierBits, while the window fits in 64 bits).
+    }
+    for (int k = 0; k < len; ++k) {
+      const int i = start + k;
+      if (!((flagged[static_cast<size_t>(k) >> 6] >> (k & 63)) & 1u)) {
+        p[i].column = static_cast<float>(fit_a[k]);
+        continue;
+      }
+      int xa, xb;
+      window(k, &xa, &xb);
+      uint64_t dropped = 0;  // bits x + h, while vector_test
       if (vector_test) {
-#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
-        if (avx2) {
-          FlaggedOutliersAvx2(raw + start, fit_a, fit_b, k0, k1, h, outlier_px, flagged, window_x.data(), outliers);
-        } else
-#endif
-        {
-          FlaggedOutliers(raw + start, fit_a, fit_b, k0, k1, h, outlier_px, flagged, window_x.data(), outliers);
-        }
-      }
-      for (int k = k0; k < k1; ++k) {
-        const int i = start + k;
-        if (!((flagged[static_cast<size_t>(k - k0) >> 6] >> ((k - k0) & 63)) & 1u) ||
-            (vector_test && outliers[k] == 0)) {
+        const uint64_t in_window = (~uint64_t{0} >> (63 - (xb - xa))) << (xa + h);  // bits xa + h .. xb + h
+        dropped = outliers[k] & in_window;
+        if (dropped == 0) {
           p[i].column = static_cast<float>(fit_a[k]);
           continue;
         }
-        // The second fit: the symmetric sums less the outliers' terms (the general fit's result,
-        // O(outliers)).
-        const double a_abs = fit_a[k], fb = fit_b[k];
-        double s0 = s0_sym, s1 = 0, s2 = s2_sym, u0 = t0s[k], u1 = t1s[k];
-        bool any = false;
-        auto drop = [&](int x) {
-          any = true;
-          const double w = h + 1 - std::abs(x);
-          const double y = raw[i + x] - origin;
-          s0 -= w;
-          s1 -= w * x;
-          s2 -= w * x * x;
-          u0 -= w * y;
-          u1 -= w * x * y;
-        };
-        if (vector_test) {
-          for (uint64_t o = outliers[k]; o != 0; o &= o - 1) drop(__builtin_ctzll(o) - h);
-        } else {
-          for (int x = -h; x <= h; ++x) {
-            if (x != 0 && std::abs(raw[i + x] - (a_abs + x * fb)) > outlier_px) drop(x);
-          }
-        }
-        if (!any) {
-          p[i].column = static_cast<float>(a_abs);
+        const uint64_t kept = in_window & ~dropped;  // holds bit h: the point itself always stays
+        const uint64_t run = kept >> __builtin_ctzll(kept);
+        if ((run & (run + 1)) == 0) {  // the kept neighbours are a range: O(1)
+          double fa, fb;
+          solve(range_sums(k, __builtin_ctzll(kept) - h, 63 - __builtin_clzll(kept) - h), &fa, &fb);
+          p[i].column = static_cast<float>(fa + origin);
           continue;
         }
-        const double det = s0 * s2 - s1 * s1;
-        const double a2 = order >= 1 && det > 1e-9 * s0 * s2 ? (s2 * u0 - s1 * u1) / det : u0 / s0;
-        p[i].column = static_cast<float>(a2 + origin);
       }
-    }
-    for (int i = start; i <= end; ++i) {
-      if (fast && i - h >= start && i + h <= end) continue;
-      const int lo = std::max(start, i - h), hi = std::min(end, i + h);
-      if (lo == hi) continue;
-      p[i].column = static_cast<float>(robust_fit(i, lo, hi));
+      // The first fit's sums less the outliers' terms.
+      Sums u = range_sums(k, xa, xb);
+      bool any = false;
+      auto drop = [&](int x) {
+        any = true;
+        const double w = h + 1 - std::abs(x);
+        const double y = raw[i + x] - origin;
+        u.s0 -= w;
+        u.s1 -= w * x;
+        u.s2 -= w * x * x;
+        u.t0 -= w * y;
+        u.t1 -= w * x * y;
+      };
+      if (vector_test) {
+        for (uint64_t o = dropped; o != 0; o &= o - 1) drop(__builtin_ctzll(o) - h);
+      } else {
+        for (int x = xa; x <= xb; ++x) {
+          if (x != 0 && std::abs(raw[i + x] - (fit_a[k] + x * fit_b[k])) > outlier_px) drop(x);
+        }
+      }
+      double fa = fit_a[k] - origin, fb;
+      if (any) solve(u, &fa, &fb);
+      p[i].column = static_cast<float>(fa + origin);
     }
   };
   // Stretches: runs of consecutive rows whose column steps are at most max_jump_px. A line steeper than
