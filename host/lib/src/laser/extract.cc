@@ -385,14 +385,6 @@ std::vector<uint64_t>& screen_scratch() {
   return buffer;
 }
 
-// Linear position where d crosses `level` between i (below) and j (at or above), j = i +- 1.
-inline double Crossing(const uint8_t* d, int below, int above, double level) {
-  const double lo = d[below];
-  const double hi = d[above];
-  const double t = hi > lo ? (level - lo) / (hi - lo) : 0.5;
-  return below + t * (above - below);
-}
-
 }  // namespace
 
 const char* EstimatorName(Estimator estimator) {
@@ -866,9 +858,20 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
       const int hi = c.peak_pos + ExtentRight(d, c.peak_pos + 1, (c.peak + 1) / 2);
       c.first = lo;
       c.last = hi;
-      const double left = lo > 0 ? Crossing(d, lo - 1, lo, half) : lo - 0.5;
-      const double right = hi < cols - 1 ? Crossing(d, hi + 1, hi, half) : hi + 0.5;
-      c.width = right - left;
+      // The width at half maximum: between the crossings of `half`, each interpolated linearly between the
+      // extent's end pixel and the next one out (at the image's border half a pixel out), i.e.
+      // (hi + 1 - n_r / d_r) - (lo - 1 + n_l / d_l), the two fractions over one division. The extent ends
+      // where d drops below ceil(peak / 2) >= half, so both denominators are positive.
+      double nl = 1, dl = 2, nr = 1, dr = 2;
+      if (lo > 0) {
+        nl = half - d[lo - 1];
+        dl = d[lo] - d[lo - 1];
+      }
+      if (hi < cols - 1) {
+        nr = half - d[hi + 1];
+        dr = d[hi] - d[hi + 1];
+      }
+      c.width = (hi - lo + 2) - (nl * dr + nr * dl) / (dl * dr);
       c.off_saturated = b[c.peak_pos] >= o.off_saturation_dn;
       // A run inside the half-maximum extent of the previous candidate is the same line (a noise dip).
       if (count > 0 && candidates[static_cast<size_t>(count - 1)].last >= lo) {
