@@ -351,7 +351,8 @@ uint64_t OutlierBits(const float* raw, int i, int h, double a, double b, double 
   const __m128d va = _mm_set1_pd(a), vb = _mm_set1_pd(b), limit = _mm_set1_pd(outlier_px);
   for (int x0 = -h; x0 <= h; x0 += 2) {
     const __m128d fitted = _mm_add_pd(va, _mm_mul_pd(_mm_loadu_pd(window_x + (x0 + h)), vb));
-    const __m128d y = _mm_cvtps_pd(_mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(raw + i + x0))));
+    // Two floats by an unaligned 64-bit load (_mm_load_sd would be a misaligned double).
+    const __m128d y = _mm_cvtps_pd(_mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(raw + i + x0))));
     const __m128d r = _mm_and_pd(abs_mask, _mm_sub_pd(y, fitted));
     bits |= static_cast<uint64_t>(_mm_movemask_pd(_mm_cmpgt_pd(r, limit))) << (x0 + h);
   }
