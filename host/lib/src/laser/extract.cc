@@ -375,15 +375,16 @@ void FlaggedOutliers(const float* raw, const double* a, const double* b, int k0,
   }
 }
 
-// Scratch of the along-line smoothing's fast path, per thread (SmoothAlongLine is a free function with a
+// Scratch of the along-line smoothing, per thread (SmoothAlongLine is a free function with a
 // public signature; a thread-local buffer keeps it allocation-free from the second frame on).
-std::vector<double>& prefix_scratch() {
-  thread_local std::vector<double> buffer;
-  return buffer;
-}
-std::vector<uint64_t>& screen_scratch() {
-  thread_local std::vector<uint64_t> buffer;
-  return buffer;
+struct SmoothScratch {
+  std::vector<double> prefix;                     // prefix sums and first fits of a stretch
+  std::vector<uint64_t> bits;                     // the screen's flags, then outlier bits per point
+  std::vector<std::array<double, 3>> cumulative;  // running sums of w, w x, w x^2 over the window
+};
+SmoothScratch& smooth_scratch() {
+  thread_local SmoothScratch scratch;
+  return scratch;
 }
 
 }  // namespace
@@ -990,13 +991,15 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   // last group.
   const size_t pad = static_cast<size_t>(half_rows) + 8;
   const size_t un = static_cast<size_t>(n);
-  scratch->assign(4 * pad + 4 * un + 16, 0.0f);
+  scratch->resize(4 * pad + 4 * un + 16);  // only raw's padding needs a value (finite: it is masked)
   float* raw = scratch->data() + pad;
+  std::fill(raw - pad, raw, 0.0f);
+  std::fill(raw + un, raw + un + pad, 0.0f);
   float* rel = raw + un + 2 * pad;
   float* af = rel + un + pad;
   float* bf = af + un + 8;
   for (int i = 0; i < n; ++i) raw[i] = p[i].column;
-  // Weighted least-squares polynomial c(x) = a + b x (+ q x^2 for degree 2) through the neighbours j of
+  // Order 2: the weighted least-squares polynomial c(x) = a + b x + q x^2 through the neighbours j of
   // point i, x = j - i (a stretch has consecutive rows), triangular weight half_rows + 1 - |x|; the
   // smoothed centre is a. Columns relative to raw[i] so that floats keep their precision. Plain scalar
   // sums and Cramer's rule: this runs for every point of every frame (an Eigen 3x3 version cost 0.6 ms
@@ -1047,7 +1050,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   };
   // Two passes: the second without the neighbours the first does not explain (a glint, a wrong peak),
   // only when there are such. The point itself always stays, so its neighbours alone cannot move it.
-  auto robust_fit_from = [&](int i, int lo, int hi, const Fit& first) {
+  auto robust_fit = [&](int i, int lo, int hi) {
+    const Fit first = fit(i, lo, hi, [](int) { return true; });
     auto explained = [&](int j) {
       const double x = j - i;
       return j == i || std::abs(raw[j] - (first.a + x * (first.b + x * first.q))) <= outlier_px;
@@ -1055,9 +1059,6 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     bool all = true;
     for (int j = lo; j <= hi && all; ++j) all = explained(j);
     return all ? first.a : fit(i, lo, hi, explained).a;
-  };
-  auto robust_fit = [&](int i, int lo, int hi) {
-    return robust_fit_from(i, lo, hi, fit(i, lo, hi, [](int) { return true; }));
   };
   // Order 0 and 1 (the default): every fit from prefix sums in O(1). With j the index in the stretch and
   // y the column relative to the stretch's first, the sums of the fit of point k over x in [xa, xb]
@@ -1067,10 +1068,12 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   // are again a range around the point (outliers at the window's ends: a curved line) is O(1) the same
   // way; other second fits subtract the outliers' terms from the first's sums.
   const int h = half_rows;
-  std::vector<double>& prefix = prefix_scratch();
-  std::vector<uint64_t>& bits = screen_scratch();
+  SmoothScratch& buffers = smooth_scratch();
+  std::vector<double>& prefix = buffers.prefix;
+  std::vector<uint64_t>& bits = buffers.bits;
+  std::vector<std::array<double, 3>>& cumulative = buffers.cumulative;
+  cumulative.resize(static_cast<size_t>(2 * h + 2));
   std::array<double, 3> weight_sums{};  // sums of w, w x, w x^2 over x = -h .. x - 1, at index x + h
-  std::vector<std::array<double, 3>> cumulative(static_cast<size_t>(2 * h + 2));
   for (int x = -h; x <= h; ++x) {
     cumulative[static_cast<size_t>(x + h)] = weight_sums;
     const double w = h + 1 - std::abs(x);
@@ -1262,7 +1265,6 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     int end = start;  // last point of the stretch, inclusive
     while (end + 1 < n && continues(end)) ++end;
     smooth_stretch(start, end);
-    { static long ns = 0, np = 0, nc = 0; ++ns; np += end - start + 1; if (start == 0) ++nc; if (ns % 20000 == 0) fprintf(stderr, "calls %ld stretches %ld points %ld\n", nc, ns, np); }
     start = end + 1;
   }
 }
