@@ -116,5 +116,55 @@ TEST(TriangulateTest, TriangulateLineKeepsIndices) {
   EXPECT_EQ(kept, (std::vector<int>{0, 2}));
 }
 
+// Triangulate runs 4 points per turn with AVX2 where the CPU has it: every path gives PointInCam's point to
+// the bit, keeps the same indices, and drops the same points (rows outside the image, either sign, and rays
+// that meet the plane behind the camera), also in a tail shorter than 4 and at the table's column clamp.
+TEST(TriangulateTest, EveryVectorPathGivesPointInCamToTheBit) {
+  for (bool distorted : {true, false}) {
+    SCOPED_TRACE(distorted ? "distorted" : "pinhole");
+    const geometry::CameraModel camera = SmallCamera(distorted);
+    Triangulator triangulator(camera);
+    // A plane through the image's middle, tilted so that its left part lies behind the camera.
+    const geometry::Plane plane =
+        geometry::Plane::FromPointNormal(Eigen::Vector3d(0, 0, 300), Eigen::Vector3d(1, 0, -0.05));
+    std::mt19937 random(7);
+    std::uniform_real_distribution<float> column(-3.0f, camera.width + 2.0f);
+    std::uniform_int_distribution<int> row(-3, camera.height + 2);
+    for (size_t count : {0u, 1u, 3u, 4u, 7u, 64u, 1001u}) {
+      Line line;
+      for (size_t i = 0; i < count; ++i) line.points.push_back({row(random), column(random), 100, 5, 1, 0});
+      std::vector<int> expected_kept;
+      std::vector<Eigen::Vector3d> expected;
+      for (size_t i = 0; i < count; ++i) {
+        const LinePoint& p = line.points[i];
+        if (p.row < 0 || p.row >= camera.height) continue;
+        const auto point = triangulator.PointInCam(plane, p.column, p.row);
+        if (!point) continue;
+        expected.push_back(*point);
+        expected_kept.push_back(static_cast<int>(i));
+      }
+      if (count == 1001) {  // the case exercises every kind of point
+        EXPECT_GT(expected.size(), count / 4);
+        EXPECT_LT(expected.size(), count * 3 / 4);
+      }
+      for (bool avx2 : {true, false}) {
+        SCOPED_TRACE(avx2 ? "AVX2 allowed" : "scalar");
+        internal::AllowVectorExtensions(avx2, avx2);
+        std::vector<Eigen::Vector3d> points{Eigen::Vector3d(1, 2, 3)};
+        std::vector<int> kept{42};
+        triangulator.Triangulate(line, plane, &points, &kept);
+        internal::AllowVectorExtensions(true, true);
+        ASSERT_EQ(kept, expected_kept) << count;
+        ASSERT_EQ(points.size(), expected.size());
+        for (size_t k = 0; k < points.size(); ++k) {
+          for (int axis = 0; axis < 3; ++axis) {
+            ASSERT_EQ(points[k][axis], expected[k][axis]) << "point " << k << " axis " << axis << " of " << count;
+          }
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace rotoscan::laser

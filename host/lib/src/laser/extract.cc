@@ -110,8 +110,16 @@ struct Candidate {
   int peak = 0;
   int first = 0;  // half-maximum extent, inclusive
   int last = 0;
-  double width = 0;
+  // The width at half maximum as the fraction width_num / width_den (width_den > 0): the candidates are
+  // judged by it without a division (a division per candidate on the way to every row's decision was the
+  // row's slowest step); only the winner's width is divided out.
+  int width_num = 0, width_den = 1;
+  int com_first = 0, com_last = 0;  // the centre of mass's run (kCenterOfMass only)
   bool off_saturated = false;
+  bool WidthWithin(double min_width, double max_width) const {
+    return width_num >= min_width * width_den && width_num <= max_width * width_den;
+  }
+  double Width() const { return static_cast<double>(width_num) / width_den; }
 };
 
 // The centre of mass of d - 0.15 peak over [first, last] (the run above that level). In integers: the
@@ -246,7 +254,6 @@ double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
   // 1 in 5 of the sampled rows' lines (every 4th pixel of whole rows touched them all and was ~13 % of a
   // frame's extraction, laser_bench). Noise fills few bins, so consecutive increments of one histogram
   // would wait on each other's store; four interleaved ones do not.
-  std::array<std::array<uint32_t, 511>, 4> partial{};
   const int row_step = std::max(1, on.rows / 16);
   constexpr int kStretch = 64;
   const int stretches = on.cols >= 4 * kStretch ? 4 : 1;
@@ -263,41 +270,78 @@ double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
       }
     }
   }
-  uint32_t total = 0;
-  for (int r = row_step / 2; r < on.rows; r += row_step) {
-    const uint8_t* a = on.ptr<uint8_t>(r);
-    const uint8_t* b = off.ptr<uint8_t>(r);
-    for (int j = 0; j < stretches; ++j) {
-      const int from = stretch_start(j);
-      for (int c = from, n = 0; c < from + stretch; ++c, ++n) {
-        const int k = c * channels + channel;
-        ++partial[static_cast<size_t>(n & 3)][static_cast<size_t>(int{a[k]} - int{b[k]} + 255)];
-      }
-      total += static_cast<uint32_t>(stretch);
-    }
-  }
-  std::array<uint32_t, 511> histogram{};
-  for (size_t k = 0; k < histogram.size(); ++k)
-    histogram[k] = partial[0][k] + partial[1][k] + partial[2][k] + partial[3][k];
-  if (total < 16) return 0.0;
-  auto interpolated_median = [&](const auto& hist, int bins, uint32_t count) {
+  auto interpolated_median = [](const uint32_t* hist, int bins, uint32_t count) {
     const double half = 0.5 * count;
     double cumulative = 0;
     for (int k = 0; k < bins; ++k) {
-      if (cumulative + hist[static_cast<size_t>(k)] >= half && hist[static_cast<size_t>(k)] > 0) {
-        return k - 0.5 + (half - cumulative) / hist[static_cast<size_t>(k)];
-      }
-      cumulative += hist[static_cast<size_t>(k)];
+      if (cumulative + hist[k] >= half && hist[k] > 0) return k - 0.5 + (half - cumulative) / hist[k];
+      cumulative += hist[k];
     }
     return static_cast<double>(bins - 1);
   };
-  const double median = interpolated_median(histogram, 511, total) - 255.0;
-  std::array<uint32_t, 512> deviation{};
-  const int m = static_cast<int>(std::lround(median));
-  for (int k = 0; k < 511; ++k) deviation[static_cast<size_t>(std::abs(k - 255 - m))] += histogram[k];
-  // Deviations are integers: bin 0 holds |x - m| in [0, 0.5), bin j holds [j - 0.5, j + 0.5).
-  const double mad = std::max(0.0, interpolated_median(deviation, 512, total) + 0.0);
-  return 1.4826 * std::max(0.0, mad);
+  // The differences go into bins of x + near clamped to [-near, near - 1]. First with near = 64: 128 bins
+  // to clear, add up and scan instead of 511 (the histogram's passes were most of the estimate's time).
+  // The clamp moves only samples beyond +-64 DN; they stay on their side of the median, and of the MAD when
+  // the MAD stays short of the clamped edges, so then the result is that of the full histogram. Otherwise
+  // (noise of tens of DN) the sample is taken again with near = 256, i.e. without a clamp.
+  std::array<std::array<uint32_t, 512>, 4> partial;
+  std::array<uint32_t, 512> histogram;
+  std::array<uint32_t, 513> deviation;
+  for (const int near : {64, 256}) {
+    const int bins = 2 * near;
+    for (auto& h : partial) std::fill(h.begin(), h.begin() + bins, 0u);
+    uint32_t total = 0;
+    for (int r = row_step / 2; r < on.rows; r += row_step) {
+      const uint8_t* a = on.ptr<uint8_t>(r);
+      const uint8_t* b = off.ptr<uint8_t>(r);
+      for (int j = 0; j < stretches; ++j) {
+        const int from = stretch_start(j);
+        int c = from, n = 0;
+#if defined(__SSE2__)
+        if (channels == 1) {  // the bins of 16 pixels at a time (16-bit lanes), then counted
+          alignas(16) uint16_t at[16];
+          const __m128i zero = _mm_setzero_si128(), offset = _mm_set1_epi16(static_cast<int16_t>(near));
+          const __m128i lo = _mm_set1_epi16(static_cast<int16_t>(-near)), hi = _mm_set1_epi16(static_cast<int16_t>(near - 1));
+          auto bin = [&](__m128i x, __m128i y) {
+            return _mm_add_epi16(_mm_min_epi16(_mm_max_epi16(_mm_sub_epi16(x, y), lo), hi), offset);
+          };
+          for (; c + 16 <= from + stretch; c += 16) {
+            const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + c));
+            const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + c));
+            _mm_store_si128(reinterpret_cast<__m128i*>(at), bin(_mm_unpacklo_epi8(va, zero), _mm_unpacklo_epi8(vb, zero)));
+            _mm_store_si128(reinterpret_cast<__m128i*>(at + 8), bin(_mm_unpackhi_epi8(va, zero), _mm_unpackhi_epi8(vb, zero)));
+            for (int q = 0; q < 16; q += 4) {
+              ++partial[0][at[q]];
+              ++partial[1][at[q + 1]];
+              ++partial[2][at[q + 2]];
+              ++partial[3][at[q + 3]];
+            }
+          }
+          n = c - from;
+        }
+#endif
+        for (; c < from + stretch; ++c, ++n) {
+          const int k = c * channels + channel;
+          const int x = std::clamp(int{a[k]} - int{b[k]}, -near, near - 1);
+          ++partial[static_cast<size_t>(n & 3)][static_cast<size_t>(x + near)];
+        }
+        total += static_cast<uint32_t>(stretch);
+      }
+    }
+    if (total < 16) return 0.0;
+    for (int k = 0; k < bins; ++k) histogram[k] = partial[0][k] + partial[1][k] + partial[2][k] + partial[3][k];
+    const double median = interpolated_median(histogram.data(), bins, total) - near;
+    const int m = static_cast<int>(std::lround(median));
+    // Deviations are integers: bin 0 holds |x - m| in [0, 0.5), bin j holds [j - 0.5, j + 0.5).
+    std::fill(deviation.begin(), deviation.begin() + bins + 1, 0u);
+    for (int k = 0; k < bins; ++k) deviation[static_cast<size_t>(std::abs(k - near - m))] += histogram[k];
+    const double mad = std::max(0.0, interpolated_median(deviation.data(), bins + 1, total));
+    // Exact when the median's bin and the MAD's lie inside the clamped edges (the edge bins hold
+    // everything beyond them).
+    const int edge = std::min(near + m, near - 1 - m);  // the clamped edges' deviation
+    if (near == 256 || (m > -near && m < near - 1 && std::lround(mad) + 1 < edge)) return 1.4826 * mad;
+  }
+  return 0.0;  // not reached
 }
 
 // The along-line smoothing's outlier screen (SmoothAlongLine): for each point k in [k0, k1) of a stretch,
@@ -713,6 +757,13 @@ void AllowVectorExtensions(bool avx2, bool ssse3) {
   (void)ssse3;
 #endif
 }
+bool UseAvx2() {
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  return HaveAvx2();
+#else
+  return false;
+#endif
+}
 }  // namespace internal
 
 Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line) {
@@ -763,6 +814,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     }
   };
 
+  const bool centre_of_mass = o.estimator == Estimator::kCenterOfMass;
   std::array<Candidate, 32> candidates;
   double previous_column = -1.0;
   int previous_row = -10;
@@ -848,32 +900,41 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     }
     // Step 3: candidates = runs of d >= threshold, found from the set bits of the blocks alone.
     int count = 0;
-    auto add_run = [&](int run_first, int run_last) {
+    auto add_run = [&](int run_first, int run_last) __attribute__((always_inline)) {
       if (count >= static_cast<int>(candidates.size())) return;
       Candidate& c = candidates[static_cast<size_t>(count)];
       const PeakInRun found = FindPeak(d, run_first, run_last);
       c.peak_pos = found.position;
       c.peak = found.value;
-      const double half = 0.5 * c.peak;
       // The half-maximum extent: d >= peak / 2, i.e. d >= ceil(peak / 2) for integers.
       const int lo = c.peak_pos - ExtentLeft(d, c.peak_pos - 1, (c.peak + 1) / 2);
       const int hi = c.peak_pos + ExtentRight(d, c.peak_pos + 1, (c.peak + 1) / 2);
       c.first = lo;
       c.last = hi;
-      // The width at half maximum: between the crossings of `half`, each interpolated linearly between the
-      // extent's end pixel and the next one out (at the image's border half a pixel out), i.e.
-      // (hi + 1 - n_r / d_r) - (lo - 1 + n_l / d_l), the two fractions over one division. The extent ends
-      // where d drops below ceil(peak / 2) >= half, so both denominators are positive.
-      double nl = 1, dl = 2, nr = 1, dr = 2;
+      if (centre_of_mass) {
+        // The centre of mass's run (d > 0.15 peak, i.e. d >= 3 peak / 20 + 1 in integers) around the peak:
+        // it holds the half-maximum extent, and scanning it from the peak rather than from the extent's
+        // ends lets it run beside the width's steps instead of after the decision.
+        const int level_min = kComLevelNum * c.peak / kComScale + 1;
+        c.com_first = c.peak_pos - ExtentLeft(d, c.peak_pos - 1, level_min);
+        c.com_last = c.peak_pos + ExtentRight(d, c.peak_pos + 1, level_min);
+      }
+      // The width at half maximum: between the crossings of peak / 2, each interpolated linearly between
+      // the extent's end pixel and the next one out (at the image's border half a pixel out), i.e.
+      // (hi + 1 - n_r / d_r) - (lo - 1 + n_l / d_l) with n = peak / 2 - d(next out) and d = d(end) -
+      // d(next out), in integers as (hi - lo + 2) - (2 n_l d_r + 2 n_r d_l) / (2 d_l d_r). The extent ends
+      // where d drops below ceil(peak / 2) >= peak / 2, so both d are positive.
+      int nl2 = 2, dl = 2, nr2 = 2, dr = 2;  // n doubled
       if (lo > 0) {
-        nl = half - d[lo - 1];
+        nl2 = c.peak - 2 * d[lo - 1];
         dl = d[lo] - d[lo - 1];
       }
       if (hi < cols - 1) {
-        nr = half - d[hi + 1];
+        nr2 = c.peak - 2 * d[hi + 1];
         dr = d[hi] - d[hi + 1];
       }
-      c.width = (hi - lo + 2) - (nl * dr + nr * dl) / (dl * dr);
+      c.width_den = 2 * dl * dr;
+      c.width_num = (hi - lo + 2) * c.width_den - (nl2 * dr + nr2 * dl);
       c.off_saturated = b[c.peak_pos] >= o.off_saturation_dn;
       // A run inside the half-maximum extent of the previous candidate is the same line (a noise dip).
       if (count > 0 && candidates[static_cast<size_t>(count - 1)].last >= lo) {
@@ -911,7 +972,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
         any_off_saturated = true;
         continue;
       }
-      if (c.width < o.min_width_px || c.width > o.max_width_px) continue;
+      if (!c.WidthWithin(o.min_width_px, o.max_width_px)) continue;
       if (best < 0 || c.peak > candidates[static_cast<size_t>(best)].peak) best = k;
     }
     if (best < 0) {
@@ -926,7 +987,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     const bool continuous = previous_column >= 0 && r - previous_row <= 2;
     for (int k = 0; k < count; ++k) {
       const Candidate& c = candidates[static_cast<size_t>(k)];
-      if (k == best || c.off_saturated || c.width < o.min_width_px || c.width > o.max_width_px) continue;
+      if (k == best || c.off_saturated || !c.WidthWithin(o.min_width_px, o.max_width_px)) continue;
       if (c.peak >= o.multiple_peak_ratio * candidates[static_cast<size_t>(best)].peak) {
         flags |= kFlagMultiplePeaks;
         const Candidate& cb = candidates[static_cast<size_t>(best)];
@@ -940,10 +1001,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     // Step 5: sub-pixel centre.
     double column;
     if (o.estimator == Estimator::kCenterOfMass) {  // EstimateCentre's, with the vector extent scans
-      const int level_min = kComLevelNum * c.peak / kComScale + 1;  // d > 0.15 peak for integers
-      const int first = c.first - ExtentLeft(d, c.first - 1, level_min);
-      const int last = c.last + ExtentRight(d, c.last + 1, level_min);
-      column = CenterOfMassOver(d, first, last, c.peak);
+      column = CenterOfMassOver(d, c.com_first, c.com_last, c.peak);
     } else {
       column = EstimateCentre(o.estimator, d, cols, c.first, c.last, c.peak);
     }
@@ -956,14 +1014,15 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     double quality = 1.0;
     if (stats.noise_dn > 0) quality *= std::min(1.0, c.peak * quality_per_snr);
     quality *= std::min(1.0, (c.peak - 0.5 * threshold) * quality_per_contrast);
-    if (c.width < narrow_width || c.width > wide_width) quality *= 0.6;
+    const double width = c.Width();
+    if (width < narrow_width || width > wide_width) quality *= 0.6;
     if (flags & kFlagMultiplePeaks) quality *= 0.5;
     if (flags & kFlagClipped) quality *= 0.3;
     LinePoint p;
     p.row = r;
     p.column = static_cast<float>(column);
     p.peak = static_cast<float>(c.peak);
-    p.width = static_cast<float>(c.width);
+    p.width = static_cast<float>(width);
     p.quality = static_cast<float>(std::clamp(quality, 0.0, 1.0));
     p.flags = flags;
     line->points.push_back(p);

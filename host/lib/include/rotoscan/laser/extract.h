@@ -151,6 +151,8 @@ namespace internal {
 // For tests: which x86 vector extensions the extractor may use when the CPU has them (both by default).
 // Every path gives the same result; tests run each.
 void AllowVectorExtensions(bool avx2, bool ssse3);
+// Whether AVX2 paths run now (the CPU has AVX2 and AllowVectorExtensions allows it); for triangulate.cc.
+bool UseAvx2();
 }  // namespace internal
 
 // Reads an 8-bit image file (PNG, JPEG, ... as OpenCV decodes it, channels as stored: BGR for color).
