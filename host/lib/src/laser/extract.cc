@@ -734,6 +734,50 @@ __attribute__((target("avx2"))) void FlaggedOutliersAvx2(const float* raw, const
   }
 }
 
+// SmoothAlongLine's first fits (order 0 or 1) of the points k in [k0, k1) whose window is whole (k0 >= h,
+// k1 <= len - h, k1 - k0 a multiple of 4), 4 points per turn: the same operations in the same order as its
+// scalar loop (range_sums, then the whole-window solve), so the same bits. Returns the largest |b|.
+__attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, const double* pjy, const double* pjjy,
+                                                           int k0, int k1, int h, bool slope, double inv_s0,
+                                                           double inv_s2, double origin, double* fit_a,
+                                                           double* fit_b, float* af, float* bf) {
+  const __m256d hp = _mm256_set1_pd(h + 1), two = _mm256_set1_pd(2.0), s0 = _mm256_set1_pd(inv_s0);
+  const __m256d s2 = _mm256_set1_pd(inv_s2), o = _mm256_set1_pd(origin);
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
+  __m256d kd = _mm256_setr_pd(k0, k0 + 1, k0 + 2, k0 + 3);
+  const __m256d four = _mm256_set1_pd(4.0);
+  __m256d max_b = _mm256_setzero_pd();
+  for (int k = k0; k < k1; k += 4, kd = _mm256_add_pd(kd, four)) {
+    const __m256d y_k = _mm256_loadu_pd(py + k), jy_k = _mm256_loadu_pd(pjy + k), jjy_k = _mm256_loadu_pd(pjjy + k);
+    const __m256d ly = _mm256_sub_pd(y_k, _mm256_loadu_pd(py + k - h));
+    const __m256d ljy = _mm256_sub_pd(jy_k, _mm256_loadu_pd(pjy + k - h));
+    const __m256d ljjy = _mm256_sub_pd(jjy_k, _mm256_loadu_pd(pjjy + k - h));
+    const __m256d ry = _mm256_sub_pd(_mm256_loadu_pd(py + k + h + 1), y_k);
+    const __m256d rjy = _mm256_sub_pd(_mm256_loadu_pd(pjy + k + h + 1), jy_k);
+    const __m256d rjjy = _mm256_sub_pd(_mm256_loadu_pd(pjjy + k + h + 1), jjy_k);
+    const __m256d two_k = _mm256_mul_pd(two, kd), kk = _mm256_mul_pd(kd, kd);
+    const __m256d lxy = _mm256_sub_pd(ljy, _mm256_mul_pd(kd, ly));
+    const __m256d lxxy = _mm256_add_pd(_mm256_sub_pd(ljjy, _mm256_mul_pd(two_k, ljy)), _mm256_mul_pd(kk, ly));
+    const __m256d rxy = _mm256_sub_pd(rjy, _mm256_mul_pd(kd, ry));
+    const __m256d rxxy = _mm256_add_pd(_mm256_sub_pd(rjjy, _mm256_mul_pd(two_k, rjy)), _mm256_mul_pd(kk, ry));
+    const __m256d t0 = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(hp, _mm256_add_pd(ly, ry)), lxy), rxy);
+    const __m256d fa = _mm256_mul_pd(t0, s0);
+    __m256d fb = _mm256_setzero_pd();
+    if (slope) {
+      const __m256d t1 = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(hp, _mm256_add_pd(lxy, rxy)), lxxy), rxxy);
+      fb = _mm256_mul_pd(t1, s2);
+    }
+    _mm256_storeu_pd(fit_a + k, _mm256_add_pd(fa, o));
+    _mm256_storeu_pd(fit_b + k, fb);
+    _mm_storeu_ps(af + k, _mm256_cvtpd_ps(fa));
+    _mm_storeu_ps(bf + k, _mm256_cvtpd_ps(fb));
+    max_b = _mm256_max_pd(max_b, _mm256_and_pd(fb, abs_mask));
+  }
+  alignas(32) double lanes[4];
+  _mm256_store_pd(lanes, max_b);
+  return std::max(std::max(lanes[0], lanes[1]), std::max(lanes[2], lanes[3]));
+}
+
 std::atomic<bool> allow_avx2{true}, allow_ssse3{true};
 
 bool HaveSsse3() {
@@ -1217,7 +1261,20 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
       }
     };
     double max_b = 0;
+    int vector_from = len, vector_to = len;  // the whole windows done 4 at a time
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+    if (avx2 && len - 2 * h >= 4) {
+      vector_from = h;
+      vector_to = h + (len - 2 * h) / 4 * 4;
+      max_b = WholeWindowFitsAvx2(py, pjy, pjjy, vector_from, vector_to, h, order >= 1, inv_s0_whole, inv_s2_whole,
+                                  origin, fit_a, fit_b, af, bf);
+    }
+#endif
     for (int k = 0; k < len; ++k) {
+      if (k == vector_from) {
+        k = vector_to - 1;
+        continue;
+      }
       int xa, xb;
       window(k, &xa, &xb);
       double fa, fb;
