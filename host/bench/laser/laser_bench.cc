@@ -146,7 +146,7 @@ BENCHMARK(BM_ExtractTriangulate)
     ->Args({0, 0, 1})
     ->Unit(benchmark::kMicrosecond);
 
-// The parts of BM_ExtractTriangulate/0/1 alone, on the lines it extracts (per row, then copied each
+// The parts of BM_ExtractTriangulate/0/1/0 alone, on the lines it extracts (per row, then copied each
 // iteration): the along-line smoothing, and the triangulation.
 std::vector<rotoscan::laser::Line> PerRowLines() {
   const Frames& f = GrayFrames();

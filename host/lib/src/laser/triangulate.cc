@@ -66,22 +66,26 @@ __attribute__((target("avx2"))) size_t TriangulateTableAvx2(const LinePoint* poi
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
   const __m256d tiny = _mm256_set1_pd(1e-12);
   // The table (1.3 MB at 1288x964) is read one row apart per point, and the frames streamed through the
-  // cache just before: the entries two turns ahead are fetched while this turn computes.
-  constexpr size_t kAhead = 8;
+  // cache just before: the entries two turns ahead are fetched while this turn computes. Each block of 4
+  // is worked out once, when it is two turns ahead, and carried to its turn.
+  Block current{}, next{};
+  if (count >= 4) current = BlockOf(points, height, nodes_per_row, column_max, column_step);
+  if (count >= 8) next = BlockOf(points + 4, height, nodes_per_row, column_max, column_step);
   size_t invalid = 0;
   for (size_t i = 0; i + 4 <= count; i += 4) {
-    if (i + kAhead + 4 <= count) {
-      alignas(16) int ahead[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(ahead),
-                      BlockOf(points + i + kAhead, height, nodes_per_row, column_max, column_step).at);
-      for (int j = 0; j < 4; ++j) _mm_prefetch(reinterpret_cast<const char*>(table + ahead[j]), _MM_HINT_T0);
+    Block ahead{};
+    if (i + 12 <= count) {
+      ahead = BlockOf(points + i + 8, height, nodes_per_row, column_max, column_step);
+      alignas(16) int at_ahead[4];
+      _mm_store_si128(reinterpret_cast<__m128i*>(at_ahead), ahead.at);
+      for (int j = 0; j < 4; ++j) _mm_prefetch(reinterpret_cast<const char*>(table + at_ahead[j]), _MM_HINT_T0);
     }
-    const LinePoint* p = points + i;
-    const Block b = BlockOf(p, height, nodes_per_row, column_max, column_step);
-    const __m256d u = b.u;
-    const __m128i g = b.g, inside = b.inside;
+    const __m256d u = current.u;
+    const __m128i g = current.g, inside = current.inside;
     alignas(16) int at[4];
-    _mm_store_si128(reinterpret_cast<__m128i*>(at), b.at);
+    _mm_store_si128(reinterpret_cast<__m128i*>(at), current.at);
+    current = next;
+    next = ahead;
     const __m256d t = _mm256_sub_pd(u, _mm256_cvtepi32_pd(g));
     const __m256d tm1 = _mm256_sub_pd(t, c1), tm2 = _mm256_sub_pd(t, c2), tp1 = _mm256_add_pd(t, c1);
     const __m256d w[4] = {
