@@ -5,7 +5,7 @@ set -euo pipefail
 
 packages=(
   # build tools
-  build-essential cmake ninja-build pkg-config git
+  build-essential cmake ninja-build pkg-config git ccache
   # host library
   libeigen3-dev libopencv-dev libopencv-contrib-dev libceres-dev libusb-1.0-0-dev libopen3d-dev
   libembree-dev nlohmann-json3-dev libcli11-dev libaravis-dev
