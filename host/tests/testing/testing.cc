@@ -1,8 +1,13 @@
 #include "testing/testing.h"
 
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cerrno>
+#include <csignal>
 #include <random>
 #include <system_error>
 
@@ -24,6 +29,42 @@ ScratchDir::ScratchDir() {
 ScratchDir::~ScratchDir() {
   std::error_code ec;
   std::filesystem::remove_all(path_, ec);
+}
+
+int RunWithFullDisk(std::size_t max_file_bytes, const std::function<int()>& body, bool kill_at_limit) {
+  const pid_t child = ::fork();
+  if (child < 0) return -1;
+  if (child == 0) {
+    if (!kill_at_limit) std::signal(SIGXFSZ, SIG_IGN);
+    const rlimit no_core{0, 0};
+    ::setrlimit(RLIMIT_CORE, &no_core);
+    const rlimit limit{static_cast<rlim_t>(max_file_bytes), static_cast<rlim_t>(max_file_bytes)};
+    if (::setrlimit(RLIMIT_FSIZE, &limit) != 0) ::_exit(125);
+    int code = 124;
+    try {
+      code = body();
+    } catch (...) {
+      code = 123;
+    }
+    ::_exit(code);  // no destructors, no atexit: the parent owns the scratch directories
+  }
+  int status = 0;
+  while (::waitpid(child, &status, 0) < 0) {
+    if (errno != EINTR) return -1;
+  }
+  if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
+  return WEXITSTATUS(status);
+}
+
+std::vector<std::string> ListTree(const std::filesystem::path& dir) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (auto it = std::filesystem::recursive_directory_iterator(dir, ec);
+       !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
+    out.push_back(it->path().lexically_relative(dir).string());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
 }
 
 }  // namespace rotoscan::testing

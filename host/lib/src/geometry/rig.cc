@@ -132,17 +132,18 @@ Result<Rig> ReadRigNodes(const cv::FileNode& root) {
 
 Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig) {
   ROTOSCAN_RETURN_IF_ERROR(rig.Validate().WithContext("refusing to write " + path.string()));
-  return WriteAtomically(path, [&](const std::filesystem::path& tmp) -> Status {
-    try {
-      cv::FileStorage storage(tmp.string(), cv::FileStorage::WRITE | cv::FileStorage::FORMAT_YAML);
-      if (!storage.isOpened()) return IoError("cannot create " + tmp.string());
-      WriteRigNodes(storage, rig);
-      storage.release();
-    } catch (const cv::Exception& e) {
-      return IoError("writing " + path.string() + ": " + e.msg);
-    }
-    return Status::Ok();
-  });
+  // Written to memory first: FileStorage does not report a failed write (a full disk).
+  std::string text;
+  try {
+    cv::FileStorage storage(".yaml", cv::FileStorage::WRITE | cv::FileStorage::MEMORY |
+                                  cv::FileStorage::FORMAT_YAML);
+    if (!storage.isOpened()) return InternalError("cannot start the YAML of " + path.string());
+    WriteRigNodes(storage, rig);
+    text = storage.releaseAndGetString();
+  } catch (const cv::Exception& e) {
+    return IoError("writing " + path.string() + ": " + e.msg);
+  }
+  return WriteFileAtomically(path, text);
 }
 
 Result<Rig> ReadRigYaml(const std::filesystem::path& path) {

@@ -163,6 +163,15 @@ Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
       fs::remove(with_ext, ec);
       return IoError("cannot write mesh " + path.string());
     }
+    // Open3D does not report every failed write (a full disk truncates the file and it still says yes):
+    // read the file back and compare before it may replace the target.
+    open3d::geometry::TriangleMesh back;
+    const bool read_back = open3d::io::ReadTriangleMesh(with_ext.string(), back);
+    if (!read_back || back.triangles_.size() != o3d.triangles_.size() ||
+        (ext != ".stl" && back.vertices_.size() != o3d.vertices_.size())) {
+      fs::remove(with_ext, ec);
+      return IoError("cannot write mesh " + path.string() + ": the file written is incomplete (disk full?)");
+    }
     fs::rename(with_ext, tmp, ec);
     if (ec) return IoError("cannot move " + with_ext.string() + ": " + ec.message());
     return Status::Ok();
