@@ -407,6 +407,15 @@ Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& 
     auto state = ParseLaserState(laser);
     if (!state.ok()) return fail(CorruptDataError("field '" + name + ".laser': " + state.status().message()));
     r.laser = *state;
+    // A thousand turns is more than any scan: beyond, the value is corrupt (and loses all precision).
+    if (std::abs(angle_deg) > 360.0 * 1000) {
+      return fail(CorruptDataError("field '" + name + ".table_angle_deg' is " + std::to_string(angle_deg) +
+                                   ": must be within +-360000"));
+    }
+    // Poses belong to calibration bundles; a scan's reader would drop such a frame without a word.
+    if (r.pose >= 0 && h.kind == BundleKind::kScan) {
+      return fail(CorruptDataError("field '" + name + ".pose': a scan bundle has no poses"));
+    }
     r.table_angle_rad = geometry::DegToRad(angle_deg);
     r.trigger_seq = static_cast<uint32_t>(seq);
     r.device_time_us = static_cast<uint64_t>(time_us);

@@ -45,10 +45,7 @@ std::vector<Eigen::Vector3d> CheckerboardPattern::CornersInTarget() const {
 Result<CheckerboardPattern> ParsePattern(const std::string& text, double square_mm) {
   CheckerboardPattern pattern;
   pattern.square_mm = square_mm;
-  char x = 0;
-  char extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &pattern.cols, &x, &pattern.rows, &extra) != 3 ||
-      (x != 'x' && x != 'X')) {
+  if (!internal::ParseColsByRows(text, &pattern.cols, &pattern.rows)) {
     return InvalidArgumentError("pattern '" + text + "' is not COLSxROWS (inner corners, e.g. 9x6)");
   }
   ROTOSCAN_RETURN_IF_ERROR(pattern.Check());

@@ -20,9 +20,16 @@ bool IsFinite(const Eigen::Vector3d& v) {
   return v.allFinite();
 }
 
+// Farther than any turntable rig: a calibration with such a value is corrupt (and overflows downstream).
+constexpr double kMaxRigDistanceMm = 1e5;
+
 Status ValidatePlane(const Plane& plane, const char* name) {
   if (!IsFinite(plane.normal) || !std::isfinite(plane.offset)) {
     return InvalidArgumentError(std::string(name) + " must be finite");
+  }
+  if (std::abs(plane.offset) > kMaxRigDistanceMm) {
+    return InvalidArgumentError(std::string(name) + " offset " + std::to_string(plane.offset) +
+                                " mm is beyond any turntable scanner (more than 100 m from the camera)");
   }
   if (std::abs(plane.normal.norm() - 1.0) > 1e-6) {
     return InvalidArgumentError(std::string(name) + " normal must have unit length, has " +
@@ -59,10 +66,16 @@ Status Rig::Validate() const {
   ROTOSCAN_RETURN_IF_ERROR(ValidatePlane(laser_plane[0], "laser_left_plane"));
   ROTOSCAN_RETURN_IF_ERROR(ValidatePlane(laser_plane[1], "laser_right_plane"));
   if (!IsFinite(axis_point_in_cam)) return InvalidArgumentError("axis_point must be finite");
+  if (axis_point_in_cam.norm() > kMaxRigDistanceMm) {
+    return InvalidArgumentError("axis_point is " + std::to_string(axis_point_in_cam.norm()) +
+                                " mm from the camera: beyond any turntable scanner (more than 100 m)");
+  }
   if (!IsFinite(axis_direction_in_cam) || std::abs(axis_direction_in_cam.norm() - 1.0) > 1e-6) {
     return InvalidArgumentError("axis_direction must be a finite unit vector");
   }
-  if (!std::isfinite(step_angle_rad)) return InvalidArgumentError("step_angle_deg must be finite");
+  if (!std::isfinite(step_angle_rad) || std::abs(step_angle_rad) > DegToRad(360.0)) {
+    return InvalidArgumentError("step_angle_deg must be finite and within one turn");
+  }
   return Status::Ok();
 }
 
@@ -149,6 +162,9 @@ Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig) {
 Result<Rig> ReadRigYaml(const std::filesystem::path& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
+    if (std::filesystem::exists(path, ec)) {
+      return InvalidArgumentError("calibration file " + path.string() + " is not a regular file");
+    }
     return NotFoundError("calibration file " + path.string() + " does not exist");
   }
   try {

@@ -175,7 +175,9 @@ Status ParseCamera(const json& j, Scene* scene) {
   RETURN_IF(r.Numbers<9>("color_matrix", -10.0, 10.0, s.color_matrix.data()));
   RETURN_IF(r.Bool("noise", &s.noise));
   RETURN_IF(r.Int("supersampling", 1, 8, &s.supersampling));
-  return c.Validate().WithContext("field 'camera'");
+  RETURN_IF(c.Validate().WithContext("field 'camera'"));
+  // A wide or off-centre view with the default distortion has no inverse at the border (NaN rays).
+  return c.CheckInvertible().WithContext("field 'camera' (hfov_deg, cx, cy, distortion)");
 }
 
 Status ParseLaser(const json& j, const std::string& name, Scene* scene, int index, bool* explicit_normal) {
