@@ -345,6 +345,7 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
     RETURN_IF(top.String("preset", &preset));
     ROTOSCAN_ASSIGN_OR_RETURN(Scene scene, SceneDefaults(preset));
     scene.base_dir = base_dir;
+    scene.source = root.dump();
     double seed = 1;
     RETURN_IF(top.Number("seed", 0, 9007199254740992.0, &seed));
     scene.seed = static_cast<uint64_t>(seed);

@@ -168,6 +168,9 @@ class BundleWriter {
   struct Options {
     bool overwrite = false;  // replace an existing bundle at the final path, or an interrupted one
     bool resume = false;     // continue an interrupted bundle (same header) instead of refusing it
+    // What produced the frames beyond the header (scene, seed, options), recorded in the partial bundle:
+    // resuming with another refuses, so that two runs never mix in one bundle.
+    std::string run_hash;
   };
 
   // Creates "<directory>.partial" with frames/ (and truth/), or with `resume` reopens an interrupted one.
