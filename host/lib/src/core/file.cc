@@ -199,7 +199,8 @@ Status CheckOutputPaths(const std::vector<OutputPath>& outputs, const std::vecto
     const OutputPath& output = outputs[k];
     const std::string name = output.what.empty() ? "output" : output.what;
     if (output.path.empty()) return InvalidArgumentError(name + ": empty path");
-    const fs::path& path = output.path;
+    fs::path path = output.path;
+    if (!path.has_filename() && path.has_parent_path()) path = path.parent_path();  // "out/" -> "out"
     const fs::path parent = ParentOf(path);
     std::error_code ec;
     if (!fs::exists(parent, ec)) {

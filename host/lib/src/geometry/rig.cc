@@ -159,6 +159,18 @@ Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig) {
   return WriteFileAtomically(path, text);
 }
 
+Result<Rig> ParseRigYaml(const std::string& text, const std::string& name) {
+  try {
+    cv::FileStorage storage(text, cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_YAML);
+    if (!storage.isOpened()) return CorruptDataError(name + " is not an OpenCV YAML file");
+    Result<Rig> rig = ReadRigNodes(storage.root());
+    if (!rig.ok()) return rig.status().WithContext(name);
+    return rig;
+  } catch (const cv::Exception& e) {
+    return CorruptDataError(name + ": " + e.msg);
+  }
+}
+
 Result<Rig> ReadRigYaml(const std::filesystem::path& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
@@ -167,15 +179,8 @@ Result<Rig> ReadRigYaml(const std::filesystem::path& path) {
     }
     return NotFoundError("calibration file " + path.string() + " does not exist");
   }
-  try {
-    cv::FileStorage storage(path.string(), cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
-    if (!storage.isOpened()) return CorruptDataError(path.string() + " is not an OpenCV YAML file");
-    Result<Rig> rig = ReadRigNodes(storage.root());
-    if (!rig.ok()) return rig.status().WithContext(path.string());
-    return rig;
-  } catch (const cv::Exception& e) {
-    return CorruptDataError(path.string() + ": " + e.msg);
-  }
+  ROTOSCAN_ASSIGN_OR_RETURN(const std::string text, ReadFile(path, std::size_t{64} << 20));
+  return ParseRigYaml(text, path.string());
 }
 
 }  // namespace rotoscan::geometry
