@@ -34,6 +34,12 @@ class ScratchDir {
 // With `kill_at_limit` SIGXFSZ is left to kill the child: a process killed in the middle of a write.
 int RunWithFullDisk(std::size_t max_file_bytes, const std::function<int()>& body, bool kill_at_limit = false);
 
+// Runs the program `argv[0]` in a child process (fork + exec: safe in a threaded test) with its files
+// limited to `max_file_bytes` as above (0: no limit), stdout dropped, stderr in `*err` (if not null);
+// returns its exit code, or 128 + signal.
+int RunProgram(const std::vector<std::string>& argv, std::size_t max_file_bytes, bool kill_at_limit,
+               std::string* err);
+
 // Every entry of `dir` (recursively), sorted, as paths relative to it: what a failed run left behind.
 std::vector<std::string> ListTree(const std::filesystem::path& dir);
 
