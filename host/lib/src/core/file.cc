@@ -104,43 +104,49 @@ Status WriteAtomically(const fs::path& path, const std::function<Status(const fs
   return SyncPath(parent, path);
 }
 
+namespace {
+
+// Writes all of `content` to `fd` and syncs it; closes `fd` on failure.
+Status WriteAllAndSync(int fd, const std::string& content, const fs::path& target) {
+  const char* data = content.data();
+  std::size_t left = content.size();
+  while (left > 0) {
+    const ssize_t n = ::write(fd, data, left);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const int error = n < 0 ? errno : EIO;
+      ::close(fd);
+      return ErrnoError("cannot write " + target.string(), error);
+    }
+    data += n;
+    left -= static_cast<std::size_t>(n);
+  }
+  if (::fsync(fd) != 0) {
+    const int error = errno;
+    ::close(fd);
+    return ErrnoError("cannot write " + target.string() + " to disk", error);
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
 Status WriteFileAtomically(const fs::path& path, const std::string& content) {
   return WriteAtomically(path, [&](const fs::path& tmp) -> Status {
     // An unnamed file (O_TMPFILE) while it is written: a process killed in the middle leaves nothing. It is
-    // given the temporary name only once complete. File systems without O_TMPFILE get the named file.
-    bool unnamed = true;
-    int fd = ::open(ParentOf(tmp).c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
-    if (fd < 0) {
-      unnamed = false;
-      fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    // given the temporary name only once complete. Where that is not possible (a file system without
+    // O_TMPFILE, no /proc), the named temporary file.
+    const int unnamed = ::open(ParentOf(tmp).c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
+    if (unnamed >= 0) {
+      ROTOSCAN_RETURN_IF_ERROR(WriteAllAndSync(unnamed, content, path));
+      const std::string self = "/proc/self/fd/" + std::to_string(unnamed);
+      const bool named = ::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) == 0;
+      if (::close(unnamed) != 0 && named) return ErrnoError("cannot write " + path.string(), errno);
+      if (named) return Status::Ok();
     }
+    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     if (fd < 0) return ErrnoError("cannot create a temporary file beside " + path.string(), errno);
-    const char* data = content.data();
-    std::size_t left = content.size();
-    while (left > 0) {
-      const ssize_t n = ::write(fd, data, left);
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) {
-        const int error = n < 0 ? errno : EIO;
-        ::close(fd);
-        return ErrnoError("cannot write " + path.string(), error);
-      }
-      data += n;
-      left -= static_cast<std::size_t>(n);
-    }
-    if (::fsync(fd) != 0) {
-      const int error = errno;
-      ::close(fd);
-      return ErrnoError("cannot write " + path.string() + " to disk", error);
-    }
-    if (unnamed) {
-      const std::string self = "/proc/self/fd/" + std::to_string(fd);
-      if (::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) != 0) {
-        const int error = errno;
-        ::close(fd);
-        return ErrnoError("cannot name the file written for " + path.string(), error);
-      }
-    }
+    ROTOSCAN_RETURN_IF_ERROR(WriteAllAndSync(fd, content, path));
     if (::close(fd) != 0) return ErrnoError("cannot write " + path.string(), errno);
     return Status::Ok();
   });
