@@ -95,7 +95,9 @@ int RunBenchAccuracy(const BenchCommandOptions& o, const Context& context) {
     }
     auto a = pipeline::RunPlaneAccuracy(d, work, o.steps, "", context.progress);
     if (!a.ok()) {
-      code = ReportStatus(context, "bench", a.status());
+      // Its work directory goes away below: nothing to resume (bench has no --resume).
+      code = ReportStatus(context, "bench",
+                          a.status().code() == StatusCode::kCancelled ? CancelledError("interrupted") : a.status());
       break;
     }
     char buffer[200];
