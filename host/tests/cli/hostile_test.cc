@@ -288,8 +288,9 @@ TEST_F(HostileTest, ResumeChecksTheSceneAndWhatIsOnDisk) {
   StopAfter stop(1);
   ASSERT_EQ(sim::Simulate(*scene, options, &stop).code(), StatusCode::kCancelled);
   ASSERT_TRUE(fs::is_directory(dir_ / "b.partial"));
-  // Another scene (another seed): refused, the partial bundle untouched.
-  WriteText(dir_ / "other.json", std::regex_replace(kTinyScene, std::regex("\"seed\": 3"), "\"seed\": 4"));
+  // Another scene (a larger sphere: the same header): refused, the partial bundle untouched.
+  WriteText(dir_ / "other.json",
+            std::regex_replace(kTinyScene, std::regex("\"radius_mm\": 20"), "\"radius_mm\": 25"));
   const std::vector<std::string> partial = ListTree(dir_ / "b.partial");
   Run r = Call({"simulate", P("other.json"), "--out", P("b"), "--resume", "--threads", "1"});
   EXPECT_EQ(r.code, kExitFailure);

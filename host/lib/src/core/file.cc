@@ -215,13 +215,13 @@ Status CheckOutputPaths(const std::vector<OutputPath>& outputs, const std::vecto
     if (!fs::is_directory(parent, ec)) {
       return InvalidArgumentError(name + " " + path.string() + ": " + parent.string() + " is not a directory");
     }
-    if (::access(parent.c_str(), W_OK | X_OK) != 0) {
-      return InvalidArgumentError(name + " " + path.string() + ": cannot write in directory " +
-                                  parent.string() + ": " + std::strerror(errno));
-    }
     const bool directory = output.kind == OutputKind::kDirectory;
     if (const std::string what = NotARegularFile(path, directory); !what.empty()) {
       return InvalidArgumentError(name + " " + path.string() + " is " + what + ": refusing to replace it");
+    }
+    if (::access(parent.c_str(), W_OK | X_OK) != 0) {
+      return InvalidArgumentError(name + " " + path.string() + ": cannot write in directory " +
+                                  parent.string() + ": " + std::strerror(errno));
     }
     if (directory && fs::exists(path, ec) && !fs::is_directory(path, ec)) {
       return InvalidArgumentError(name + " " + path.string() + " is a file, not a directory");
