@@ -456,6 +456,9 @@ TEST_F(HostileTest, MessagesSayWhatIsWrong) {
   ExpectRefused({"process", Shared("bundle").string(), "--calib", P("calib.yaml"), "--out", P("c.ply")},
                 kExitFailure, "not a regular file");
   ExpectRefused({"frobnicate"}, kExitUsage, "unknown command 'frobnicate'");
+  WriteText(dir_ / "demo-file", "x");
+  ExpectRefused({"demo", "--data", rotoscan::testing::DataPath("").string(), "--out", P("demo-file")}, kExitFailure,
+                "demo-file");
   ExpectRefused({"bench", "foo"}, kExitUsage, "unknown benchmark 'foo'");
   // A PLY comment containing "end_header" does not end the header.
   cloud::PointCloud few = Sphere(10);
