@@ -18,6 +18,7 @@
 
 #include "command.h"
 #include "rotoscan/bundle/bundle.h"
+#include "rotoscan/bundle/truth.h"
 #include "rotoscan/calib/camera_calibration.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/core/file.h"
@@ -34,12 +35,12 @@ using rotoscan::testing::ListTree;
 using rotoscan::testing::RunWithFullDisk;
 using rotoscan::testing::ScratchDir;
 
-struct Run {
+struct Outcome {
   int code;
   std::string out, err;
 };
 
-Run Call(const std::vector<std::string>& args) {
+Outcome Call(const std::vector<std::string>& args) {
   std::vector<const char*> argv{"rotoscan", "--no-progress"};
   for (const auto& a : args) argv.push_back(a.c_str());
   std::ostringstream out, err;
@@ -109,7 +110,7 @@ class HostileTest : public ::testing::Test {
   static void SetUpTestSuite() {
     shared_ = new ScratchDir;
     ASSERT_TRUE(WriteFileAtomically(*shared_ / "scene.json", kTinyScene).ok());
-    const Run r = Call({"simulate", (*shared_ / "scene.json").string(), "--out", (*shared_ / "bundle").string(),
+    const Outcome r = Call({"simulate", (*shared_ / "scene.json").string(), "--out", (*shared_ / "bundle").string(),
                         "--threads", "1"});
     ASSERT_EQ(r.code, kExitOk) << r.err;
     ASSERT_TRUE(cloud::WritePly(*shared_ / "cloud.ply", Sphere()).ok());
@@ -123,7 +124,7 @@ class HostileTest : public ::testing::Test {
   // Runs a case that must fail: exit `code`, the message holding `named`, the scratch directory as before.
   void ExpectRefused(const std::vector<std::string>& args, int code, const std::string& named) {
     const std::vector<std::string> before = ListTree(dir_.path());
-    const Run r = Call(args);
+    const Outcome r = Call(args);
     EXPECT_EQ(r.code, code) << ::testing::PrintToString(args) << "\n" << r.err;
     EXPECT_NE(r.err.find(named), std::string::npos)
         << ::testing::PrintToString(args) << ": message does not name '" << named << "':\n" << r.err;
@@ -257,7 +258,7 @@ TEST_F(HostileTest, OutputThatIsADeviceFifoOrSymlinkIsNeverReplaced) {
   ASSERT_EQ(::mkfifo((dir_ / "fifo").c_str(), 0644), 0);
   fs::create_symlink("/dev/null", dir_ / "null");
   fs::create_symlink(Shared("cloud.ply"), dir_ / "link.ply");
-  for (const std::string out : {P("fifo"), P("null"), P("link.ply")}) {
+  for (const std::string& out : {P("fifo"), P("null"), P("link.ply")}) {
     ExpectRefused({"process", Shared("bundle").string(), "--out", out}, kExitFailure, out);
     ExpectRefused({"extract", "--on", Shared("cloud.ply").string(), "--off", Shared("cloud.ply").string(), "--out",
                    out},
@@ -297,7 +298,7 @@ TEST_F(HostileTest, ResumeChecksTheSceneAndWhatIsOnDisk) {
   WriteText(dir_ / "other.json",
             std::regex_replace(kTinyScene, std::regex("\"radius_mm\": 20"), "\"radius_mm\": 25"));
   const std::vector<std::string> partial = ListTree(dir_ / "b.partial");
-  Run r = Call({"simulate", P("other.json"), "--out", P("b"), "--resume", "--threads", "1"});
+  Outcome r = Call({"simulate", P("other.json"), "--out", P("b"), "--resume", "--threads", "1"});
   EXPECT_EQ(r.code, kExitFailure);
   EXPECT_NE(r.err.find("another scene"), std::string::npos) << r.err;
   EXPECT_EQ(ListTree(dir_ / "b.partial"), partial);
@@ -395,7 +396,7 @@ TEST_F(HostileTest, InterruptedOverwriteCanBeResumed) {
   ASSERT_EQ(interrupted.code(), StatusCode::kCancelled);
   EXPECT_NE(interrupted.message().find("--resume"), std::string::npos);
   EXPECT_EQ(Text(dir_ / "b" / "old"), "the previous bundle");  // kept until the new one is complete
-  const Run r = Call({"simulate", Shared("scene.json").string(), "--out", P("b"), "--resume", "--threads", "1"});
+  const Outcome r = Call({"simulate", Shared("scene.json").string(), "--out", P("b"), "--resume", "--threads", "1"});
   ASSERT_EQ(r.code, kExitOk) << r.err;
   EXPECT_FALSE(fs::exists(dir_ / "b" / "old"));
   EXPECT_FALSE(fs::exists(dir_ / "b.partial"));
@@ -444,7 +445,7 @@ TEST_F(HostileTest, AbsurdValuesAreRefused) {
   WriteText(dir_ / "b" / "bundle.json", json);
   ExpectRefused({"bench", "accuracy", "--steps", "0"}, kExitUsage, "steps");
   ::setenv("ROTOSCAN_LOG_LEVEL", "loud", 1);
-  const Run r = Call({"mesh", "--help"});
+  const Outcome r = Call({"mesh", "--help"});
   ::unsetenv("ROTOSCAN_LOG_LEVEL");
   EXPECT_EQ(r.code, kExitUsage);
   EXPECT_NE(r.err.find("ROTOSCAN_LOG_LEVEL"), std::string::npos) << r.err;
