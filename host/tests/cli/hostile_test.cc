@@ -101,10 +101,10 @@ std::string ReplaceYamlData(const std::string& yaml, const std::string& key, con
 }
 
 constexpr const char* kTinyScene =
-    R"({"seed": 3, "steps": 3, "camera": {"width": 160, "height": 120, "hfov_deg": 30, "supersampling": 1},
+    R"({"seed": 3, "steps": 3, "camera": {"width": 320, "height": 240, "hfov_deg": 20, "supersampling": 1},
         "objects": [{"type": "sphere", "radius_mm": 20}]})";
 
-// One small scan bundle (3 steps at 160x120) and a good cloud, shared by the cases (read only).
+// One small scan bundle (3 steps at 320x240, 257 points) and a good cloud, shared by the cases (read only).
 class HostileTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -199,7 +199,8 @@ TEST_F(HostileTest, OutputDirectoryRemovedDuringTheWork) {
   progress.dir = dir_ / "out";
   std::ostringstream out, err;
   const std::string cloud = Shared("cloud.ply").string(), mesh = P("out/m.ply");
-  const std::vector<const char*> argv{"rotoscan", "mesh", cloud.c_str(), "--out", mesh.c_str(), "--depth", "5"};
+  const std::vector<const char*> argv{"rotoscan", "mesh", cloud.c_str(), "--out", mesh.c_str(), "--depth", "5",
+                                    "--threads", "1"};
   Context context{&out, &err, &progress};
   CLI::App app;
   int code = -1;
@@ -337,8 +338,8 @@ TEST_F(HostileTest, ProcessAbsurdCalibrationOrNoPointIsAnError) {
     ExpectRefused({"process", Shared("bundle").string(), "--out", P("c.ply"), "--min-quality", quality},
                   kExitFailure, "min_quality");
   }
-  // A calibration that sees nothing: no point, no file.
-  WriteText(dir_ / "away.yaml", ReplaceYamlData(truth, "axis_point", "0., 0., -300."));
+  // A tiny focal length: no point, no file.
+  WriteText(dir_ / "away.yaml", ReplaceYamlData(truth, "K", "1e-3, 0., 160., 0., 1e-3, 120., 0., 0., 1."));
   ExpectRefused({"process", Shared("bundle").string(), "--calib", P("away.yaml"), "--out", P("c.ply")}, kExitFailure,
                 "no point");
 }
@@ -439,7 +440,7 @@ TEST_F(HostileTest, AbsurdValuesAreRefused) {
                                std::regex_constants::format_first_only));
   ExpectRefused({"process", P("b"), "--out", P("c.ply")}, kExitFailure, "table_angle_deg");
   WriteText(dir_ / "b" / "bundle.json",
-            std::regex_replace(json, std::regex("\"laser\": *\"left\""), "\"laser\": \"left\", \"pose\": 2",
+            std::regex_replace(json, std::regex("\"pose\": *-1"), "\"pose\": 2",
                                std::regex_constants::format_first_only));
   ExpectRefused({"process", P("b"), "--out", P("c.ply")}, kExitFailure, "pose");
   WriteText(dir_ / "b" / "bundle.json", json);
