@@ -575,7 +575,8 @@ BundleWriter::BundleWriter(fs::path final_dir, fs::path working, BundleHeader he
 
 Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& directory,
                                                            const BundleHeader& header,
-                                                           const Options& options) {
+                                                           const Options& options,
+                                                           const std::string& run_hash_now) {
   ROTOSCAN_RETURN_IF_ERROR(ValidateHeader(header));
   std::error_code ec;
   fs::path final_dir = directory;
@@ -599,11 +600,11 @@ Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& direc
                                        "(start again with overwrite, or use the same settings)");
       }
       auto run_hash = ReadFile(working / kRunHashFile, kMaxJsonBytes);
-      if (!run_hash.ok() || *run_hash != options.run_hash) {
+      if (!run_hash.ok() || *run_hash != run_hash_now) {
         return FailedPreconditionError("the interrupted bundle in " + working.string() +
                                        " was started with another scene or other options (run hash " +
                                        (run_hash.ok() ? *run_hash : std::string("missing")) + ", now " +
-                                       options.run_hash + "): it cannot be resumed with these");
+                                       run_hash_now + "): it cannot be resumed with these");
       }
       RemoveStrayTemporaries(working);
       ROTOSCAN_ASSIGN_OR_RETURN(writer->frames_, ReadJournal(working, header_text));
@@ -634,7 +635,7 @@ Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& direc
   if (ec) return IoError("cannot create " + working.string() + ": " + ec.message());
   ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kHeaderFile, header_text));
   if (writer->started_) {
-    ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kRunHashFile, options.run_hash));
+    ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kRunHashFile, run_hash_now));
     if (options.overwrite) ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kOverwriteFile, ""));
   }
   const fs::path journal_path = working / kJournalFile;

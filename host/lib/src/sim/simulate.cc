@@ -205,7 +205,7 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   char hash_text[17];
   std::snprintf(hash_text, sizeof(hash_text), "%016llx", static_cast<unsigned long long>(hash));
   ROTOSCAN_ASSIGN_OR_RETURN(auto writer, bundle::BundleWriter::Create(
-                                             options.out, header, {options.overwrite, options.resume, hash_text}));
+                                             options.out, header, {options.overwrite, options.resume}, hash_text));
   const std::filesystem::path work = writer->working_directory();
   if (options.truth) {
     ROTOSCAN_RETURN_IF_ERROR(geometry::WriteRigYaml(work / "truth" / "rig.yaml", scene.rig));
