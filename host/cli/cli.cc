@@ -1,3 +1,4 @@
+#include <cstdlib>
 #include <exception>
 #include <ostream>
 
@@ -47,6 +48,30 @@ int Main(int argc, const char* const* argv, std::ostream& out, std::ostream& err
     if (no_progress) context.progress = &quiet;
   });
 
+  if (const char* env = std::getenv("ROTOSCAN_LOG_LEVEL"); env != nullptr && !ParseLogLevel(env)) {
+    err << "rotoscan: ROTOSCAN_LOG_LEVEL='" << env << "' is not trace, debug, info, warning, error or off\n";
+    return kExitUsage;
+  }
+  // The command word: the first argument that is not a global option (CLI11 would say "A subcommand is
+  // required" for a misspelt one).
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--log-level") {
+      ++i;
+      continue;
+    }
+    if (arg.empty() || arg[0] == '-') continue;
+    bool known = false;
+    const CLI::App& commands = app;
+    for (const CLI::App* command : commands.get_subcommands([](const CLI::App*) { return true; })) {
+      known = known || command->check_name(arg);
+    }
+    if (!known) {
+      err << "rotoscan: unknown command '" << arg << "' (rotoscan --help lists them)\n";
+      return kExitUsage;
+    }
+    break;
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -95,7 +95,9 @@ int RunBenchAccuracy(const BenchCommandOptions& o, const Context& context) {
     }
     auto a = pipeline::RunPlaneAccuracy(d, work, o.steps, "", context.progress);
     if (!a.ok()) {
-      code = ReportStatus(context, "bench", a.status());
+      // Its work directory goes away below: nothing to resume (bench has no --resume).
+      code = ReportStatus(context, "bench",
+                          a.status().code() == StatusCode::kCancelled ? CancelledError("interrupted") : a.status());
       break;
     }
     char buffer[200];
@@ -117,7 +119,9 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
   o = BenchCommandOptions{};  // Main() may run more than once in a process (tests)
   sub->add_option("what", o.what, "accuracy | extract | render");
   sub->add_option("--distance", o.distances, "plane distance(s) in mm for accuracy (default 270..310)");
-  sub->add_option("--steps", o.steps, "table steps rendered per distance")->capture_default_str();
+  sub->add_option("--steps", o.steps, "table steps rendered per distance")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1200));
   sub->add_flag(
       "--calib", o.calib,
       "accuracy: calibrate from rendered calibration-object bundles (three-step and joint) with lens "
@@ -140,9 +144,13 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
       *exit_code = o.calib ? RunBenchCalibratedAccuracy(o, context) : RunBenchAccuracy(o, context);
       return;
     }
-    *exit_code =
-        NotBuilt(context, "bench",
-                 "'" + o.what + "' (built: accuracy; speed: the Google Benchmark programs in host/bench/)");
+    if (o.what == "extract" || o.what == "render") {
+      *exit_code = NotBuilt(context, "bench",
+                            "'" + o.what + "' (built: accuracy; speed: the Google Benchmark programs in host/bench/)");
+      return;
+    }
+    *context.err << "rotoscan bench: unknown benchmark '" << o.what << "' (accuracy, extract or render)\n";
+    *exit_code = kExitUsage;
   });
 }
 

@@ -448,6 +448,11 @@ int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) 
   if (options.bundles.empty()) {
     return ReportStatus(context, command, InvalidArgumentError("no calibration bundle given"));
   }
+  std::vector<OutputPath> outputs{{options.out, "--out"}};
+  if (!options.report.empty()) outputs.push_back({options.report, "--report"});
+  const Status paths =
+      CheckOutputPaths(outputs, std::vector<std::filesystem::path>(options.bundles.begin(), options.bundles.end()));
+  if (!paths.ok()) return ReportStatus(context, command, paths);
   Result<calib::CalibrationData> data = ObservationsFromBundles(options.bundles, context.progress);
   if (!data.ok()) return ReportStatus(context, command, data.status());
   const calib::RigCalibrationOptions calibration_options;
@@ -455,12 +460,14 @@ int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) 
   if (!initial.ok()) return ReportStatus(context, command, initial.status());
   Result<calib::RigCalibration> refined = calib::RefineRig(*data, *initial, calibration_options);
   if (!refined.ok()) return ReportStatus(context, command, refined.status());
-  Status written = calib::WriteCalibrationYaml(options.out, *refined);
-  if (!written.ok()) return ReportStatus(context, command, written);
+  // The report first: a failure there leaves no calib.yaml that looks like a finished run.
+  Status written = Status::Ok();
   if (!options.report.empty()) {
     written = WriteFileAtomically(options.report, calib::SummaryToJson(refined->summary));
     if (!written.ok()) return ReportStatus(context, command, written);
   }
+  written = calib::WriteCalibrationYaml(options.out, *refined);
+  if (!written.ok()) return ReportStatus(context, command, written);
 
   const calib::RigCalibrationSummary& s = refined->summary;
   const geometry::Rig& rig = refined->estimate.rig;
@@ -534,6 +541,8 @@ struct CalibrateCameraOptions {
 
 int RunCalibrateCamera(const CalibrateCameraOptions& options, const Context& context) {
   const std::string command = "calibrate camera";
+  const Status paths = CheckOutputPaths({{options.out, "--out"}}, {options.images});
+  if (!paths.ok()) return ReportStatus(context, command, paths);
   Result<calib::CameraCalibration> result = InvalidArgumentError(
       "give the target: --pattern COLSxROWS (checkerboard inner corners) or --charuco COLSxROWS (ChArUco "
       "squares) with --marker MM");

@@ -43,6 +43,10 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
   }
   Status checked = o.evaluate.Check();
   if (!checked.ok()) return fail(checked);
+  if (!o.report.empty()) {
+    checked = CheckOutputPaths({{o.report, "--report"}}, {o.cloud, o.truth, o.scene});
+    if (!checked.ok()) return fail(checked);
+  }
   auto cloud = cloud::ReadPly(o.cloud);
   if (!cloud.ok()) return fail(cloud.status());
   if (cloud->empty()) return fail(InvalidArgumentError(o.cloud + ": the cloud has no points"));

@@ -33,6 +33,8 @@ int RunExtract(const ExtractCommandOptions& o, const Context& context) {
     *context.err << "rotoscan extract: --on, --off and --out are required\n";
     return kExitUsage;
   }
+  const Status paths = CheckOutputPaths({{o.out, "--out"}}, {o.on, o.off});
+  if (!paths.ok()) return fail(paths);
   laser::ExtractOptions options;
   auto channel = laser::ParseChannel(o.channel);
   if (!channel.ok()) return fail(channel.status());

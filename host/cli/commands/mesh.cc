@@ -2,6 +2,7 @@
 #include <ostream>
 
 #include "command.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/mesh/mesh.h"
 
@@ -17,6 +18,11 @@ struct MeshOptions {
 };
 
 Status RunMeshCommand(const MeshOptions& options, const Context& context) {
+  std::filesystem::path preview = options.preview_path;
+  if (preview.empty()) preview = std::filesystem::path(options.out_path).replace_extension(".png");
+  ROTOSCAN_RETURN_IF_ERROR(mesh::CheckMeshPath(options.out_path));
+  ROTOSCAN_RETURN_IF_ERROR(
+      CheckOutputPaths({{options.out_path, "--out"}, {preview, "--preview"}}, {options.cloud_path}));
   ROTOSCAN_ASSIGN_OR_RETURN(cloud::PointCloud cloud, cloud::ReadPly(options.cloud_path));
   mesh::PoissonOptions poisson;
   poisson.depth = options.depth;
@@ -26,10 +32,9 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
   ROTOSCAN_ASSIGN_OR_RETURN(
       mesh::TriangleMesh surface,
       mesh::PoissonReconstruct(mesh::ToColoredPoints(cloud), poisson, &summary, context.progress));
-  ROTOSCAN_RETURN_IF_ERROR(mesh::WriteMesh(options.out_path, surface));
-  std::filesystem::path preview = options.preview_path;
-  if (preview.empty()) preview = std::filesystem::path(options.out_path).replace_extension(".png");
+  // The preview is drawn before anything is written: a failure leaves neither file.
   ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat picture, mesh::RenderPreview(surface, mesh::PreviewOptions{}));
+  ROTOSCAN_RETURN_IF_ERROR(mesh::WriteMesh(options.out_path, surface));
   ROTOSCAN_RETURN_IF_ERROR(mesh::WritePng(preview, picture));
   *context.out << "mesh: " << summary.input_points << " points -> " << surface.vertices.size()
                << " vertices, " << surface.triangles.size() << " triangles (depth " << options.depth << ", "

@@ -2,6 +2,7 @@
 #include <ostream>
 
 #include "command.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/geometry/rig.h"
@@ -24,6 +25,8 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
     *context.err << "rotoscan process: a bundle and --out are required\n";
     return kExitUsage;
   }
+  const Status paths = CheckOutputPaths({{o.out, "--out"}}, {o.bundle, o.calib});
+  if (!paths.ok()) return fail(paths);
   pipeline::ProcessOptions options;
   auto estimator = laser::ParseEstimator(o.estimator);
   if (!estimator.ok()) return fail(estimator.status());
@@ -54,6 +57,11 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
   if (!rig.ok()) return fail(rig.status().WithContext("reading " + calib.string()));
   auto result = pipeline::ProcessBundle(o.bundle, *rig, options, context.progress);
   if (!result.ok()) return fail(result.status().WithContext(o.bundle));
+  if (result->cloud.empty()) {
+    *context.out << pipeline::FormatSummary(result->summary);
+    return fail(NotFoundError("no point survived in " + o.bundle +
+                              ": check the calibration and --min-quality; nothing written"));
+  }
   const Status written = cloud::WritePly(o.out, result->cloud);
   if (!written.ok()) return fail(written);
   *context.out << pipeline::FormatSummary(result->summary) << "wrote " << result->cloud.size()

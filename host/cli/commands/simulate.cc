@@ -5,6 +5,7 @@
 #include <ostream>
 
 #include "command.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/sim/scene.h"
 #include "rotoscan/sim/simulate.h"
 
@@ -24,6 +25,8 @@ struct SimulateCommandOptions {
 int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   auto kind = sim::ParseSimulateKind(options.kind);
   if (!kind.ok()) return ReportStatus(context, "simulate", kind.status());
+  const Status paths = CheckOutputPaths({{options.out, "--out", OutputKind::kDirectory}}, {options.scene});
+  if (!paths.ok()) return ReportStatus(context, "simulate", paths);
   auto scene = sim::LoadScene(options.scene);
   if (!scene.ok()) return ReportStatus(context, "simulate", scene.status());
   sim::SimulateOptions sim_options;

@@ -2,6 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
+
+#include <csignal>
 #include <fstream>
 
 #include "testing/testing.h"
@@ -71,6 +75,130 @@ TEST(FileTest, ClearErrors) {
   EXPECT_EQ(ReadFile(dir / "big", 10).status().code(), StatusCode::kInvalidArgument);
   EXPECT_EQ(WriteFileAtomically(dir / "no" / "such" / "dir.txt", "x").code(), StatusCode::kNotFound);
   EXPECT_EQ(WriteFileAtomically("", "x").code(), StatusCode::kInvalidArgument);
+}
+
+// Issue 20, defect 1: on a full disk the write fails, the previous file stays and no temporary is left.
+TEST(FileTest, FullDiskFailsAndKeepsThePreviousFile) {
+  testing::ScratchDir dir;
+  ASSERT_TRUE(WriteFileAtomically(dir / "calib.yaml", "good").ok());
+  const int code = testing::RunWithFullDisk(1000, [&] {
+    const Status s = WriteFileAtomically(dir / "calib.yaml", std::string(5000, 'x'));
+    if (s.ok()) return 0;
+    return s.code() == StatusCode::kIoError && s.message().find("calib.yaml") != std::string::npos ? 1 : 2;
+  });
+  EXPECT_EQ(code, 1);
+  EXPECT_EQ(*ReadFile(dir / "calib.yaml"), "good");
+  EXPECT_EQ(testing::ListTree(dir.path()), std::vector<std::string>{"calib.yaml"});
+}
+
+// Issue 20, defect 4: a device, a FIFO or a symlink at the output path is never replaced.
+TEST(FileTest, OutputThatIsADeviceFifoOrSymlinkIsNeverReplaced) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(::mkfifo((dir / "fifo").c_str(), 0644), 0);
+  ASSERT_TRUE(WriteFileAtomically(dir / "target", "kept").ok());
+  fs::create_symlink(dir / "target", dir / "link");
+  fs::create_symlink("/dev/null", dir / "null");
+  for (const char* name : {"fifo", "link", "null"}) {
+    const Status s = WriteFileAtomically(dir / name, "x");
+    EXPECT_EQ(s.code(), StatusCode::kInvalidArgument) << name;
+    EXPECT_NE(s.message().find(name), std::string::npos) << s.ToString();
+  }
+  EXPECT_TRUE(fs::is_fifo(fs::symlink_status(dir / "fifo")));
+  EXPECT_TRUE(fs::is_symlink(dir / "link"));
+  EXPECT_EQ(*ReadFile(dir / "target"), "kept");
+  EXPECT_EQ(testing::ListTree(dir.path()), (std::vector<std::string>{"fifo", "link", "null", "target"}));
+  // A character device itself (our own node, like /dev/null; only where we may make one: root, no
+  // container restriction). Never /dev/null itself: a broken check would replace the system's.
+  if (::mknod((dir / "device").c_str(), S_IFCHR | 0666, makedev(1, 3)) == 0) {
+    const Status s = WriteFileAtomically(dir / "device", "x");
+    EXPECT_EQ(s.code(), StatusCode::kInvalidArgument) << s.ToString();
+    EXPECT_NE(s.message().find("a device"), std::string::npos) << s.ToString();
+    EXPECT_TRUE(fs::is_character_file(dir / "device"));
+  }
+}
+
+TEST(FileTest, ReadFileRefusesAFifo) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(::mkfifo((dir / "fifo").c_str(), 0644), 0);
+  EXPECT_EQ(ReadFile(dir / "fifo").status().code(), StatusCode::kInvalidArgument);  // would block
+}
+
+// Issue 20, defects 4, 7, 8: every output is checked before the work starts.
+TEST(FileTest, OutputPathsAreCheckedBeforeTheWork) {
+  testing::ScratchDir dir;
+  ASSERT_TRUE(WriteFileAtomically(dir / "cloud.ply", "ply").ok());
+  ASSERT_EQ(::mkfifo((dir / "fifo").c_str(), 0644), 0);
+  fs::create_directories(dir / "bundle");
+  auto check = [&](std::vector<OutputPath> outputs, std::vector<fs::path> inputs = {}) {
+    return CheckOutputPaths(outputs, inputs);
+  };
+  EXPECT_TRUE(check({{dir / "mesh.ply", "--out"}, {dir / "mesh.png", "--preview"}}, {dir / "cloud.ply"}).ok());
+  EXPECT_TRUE(check({{dir / "cloud.ply", "--out"}}).ok());  // replacing a regular file is fine
+  EXPECT_TRUE(check({{dir / "bundle", "--out", OutputKind::kDirectory}}).ok());
+  // Output = input, also through another spelling.
+  fs::create_directories(dir / "x");
+  Status s = check({{dir / "x" / ".." / "cloud.ply", "--out"}}, {dir / "cloud.ply"});
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("is also an input"), std::string::npos) << s.ToString();
+  fs::create_symlink(dir / "x", dir / "y");
+  fs::create_hard_link(dir / "cloud.ply", dir / "x" / "hard.ply");
+  EXPECT_EQ(check({{dir / "y" / "hard.ply", "--out"}}, {dir / "cloud.ply"}).code(), StatusCode::kInvalidArgument);
+  // Two outputs on one path.
+  s = check({{dir / "m.ply", "--out"}, {dir / "m.ply", "--preview"}});
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("--preview"), std::string::npos) << s.ToString();
+  // Missing directory, a file as directory, a directory as file, a FIFO, a device.
+  s = check({{dir / "nodir" / "r.json", "--report"}});
+  EXPECT_EQ(s.code(), StatusCode::kNotFound);
+  EXPECT_NE(s.message().find("--report"), std::string::npos) << s.ToString();
+  EXPECT_NE(s.message().find("nodir"), std::string::npos) << s.ToString();
+  EXPECT_EQ(check({{dir / "cloud.ply" / "r.json", "--out"}}).code(), StatusCode::kInvalidArgument);
+  s = check({{dir / "bundle", "--out"}});
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("a directory"), std::string::npos) << s.ToString();
+  EXPECT_EQ(check({{dir / "cloud.ply", "--out", OutputKind::kDirectory}}).code(), StatusCode::kInvalidArgument);
+  s = check({{dir / "fifo", "--out"}});
+  EXPECT_NE(s.message().find("a FIFO"), std::string::npos) << s.ToString();
+  s = check({{"/dev/null", "--out"}});
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("a device"), std::string::npos) << s.ToString();
+  EXPECT_EQ(check({{"", "--out"}}).code(), StatusCode::kInvalidArgument);
+  // A directory output holding one of the inputs (it would be replaced).
+  ASSERT_TRUE(WriteFileAtomically(dir / "bundle" / "scene.json", "{}").ok());
+  EXPECT_EQ(check({{dir / "bundle", "--out", OutputKind::kDirectory}}, {dir / "bundle" / "scene.json"}).code(),
+            StatusCode::kInvalidArgument);
+  // A directory we may not write in (not as root: root may write anywhere).
+  if (::geteuid() != 0) {
+    fs::create_directories(dir / "ro");
+    fs::permissions(dir / "ro", fs::perms::owner_read | fs::perms::owner_exec);
+    EXPECT_EQ(check({{dir / "ro" / "a.ply", "--out"}}).code(), StatusCode::kInvalidArgument);
+    fs::permissions(dir / "ro", fs::perms::owner_all);
+  }
+}
+
+// A process killed in the middle of a write (SIGXFSZ at the file size limit) leaves the previous file and
+// nothing else.
+TEST(FileTest, KillInTheMiddleOfAWriteLeavesThePreviousFile) {
+  testing::ScratchDir dir;
+  ASSERT_TRUE(WriteFileAtomically(dir / "cloud.ply", "good").ok());
+  const int code = testing::RunWithFullDisk(
+      4096, [&] { return WriteFileAtomically(dir / "cloud.ply", std::string(100000, 'x')).ok() ? 0 : 1; },
+      /*kill_at_limit=*/true);
+  EXPECT_EQ(code, 128 + SIGXFSZ);
+  EXPECT_EQ(*ReadFile(dir / "cloud.ply"), "good");
+  EXPECT_EQ(testing::ListTree(dir.path()), std::vector<std::string>{"cloud.ply"});
+}
+
+// A directory that disappears while the writer works: an error, nothing left.
+TEST(FileTest, OutputDirectoryRemovedDuringTheWrite) {
+  testing::ScratchDir dir;
+  fs::create_directories(dir / "out");
+  const Status s = WriteAtomically(dir / "out" / "cloud.ply", [&](const fs::path& tmp) -> Status {
+    fs::remove_all(dir / "out");
+    return WriteFileAtomically(tmp, "ply");
+  });
+  EXPECT_FALSE(s.ok());
+  EXPECT_TRUE(testing::ListTree(dir.path()).empty());
 }
 
 }  // namespace

@@ -407,6 +407,15 @@ Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& 
     auto state = ParseLaserState(laser);
     if (!state.ok()) return fail(CorruptDataError("field '" + name + ".laser': " + state.status().message()));
     r.laser = *state;
+    // A thousand turns is more than any scan: beyond, the value is corrupt (and loses all precision).
+    if (std::abs(angle_deg) > 360.0 * 1000) {
+      return fail(CorruptDataError("field '" + name + ".table_angle_deg' is " + std::to_string(angle_deg) +
+                                   ": must be within +-360000"));
+    }
+    // Poses belong to calibration bundles; a scan's reader would drop such a frame without a word.
+    if (r.pose >= 0 && h.kind == BundleKind::kScan) {
+      return fail(CorruptDataError("field '" + name + ".pose': a scan bundle has no poses"));
+    }
     r.table_angle_rad = geometry::DegToRad(angle_deg);
     r.trigger_seq = static_cast<uint32_t>(seq);
     r.device_time_us = static_cast<uint64_t>(time_us);
@@ -474,6 +483,31 @@ namespace {
 constexpr const char* kHeaderFile = "header.json";
 constexpr const char* kJournalFile = "journal.jsonl";
 constexpr const char* kLockFile = ".lock";
+constexpr const char* kRunHashFile = "run-hash";
+constexpr const char* kOverwriteFile = "overwrite";  // started with overwrite: Finish() replaces the old bundle
+
+// Stray temporary files (a writer killed before its rename): never trusted, removed.
+void RemoveStrayTemporaries(const fs::path& working) {
+  std::error_code ec;
+  std::vector<fs::path> stray;
+  for (auto it = fs::recursive_directory_iterator(working, ec); !ec && it != fs::recursive_directory_iterator();
+       it.increment(ec)) {
+    if (it->path().filename().string().find(".tmp-") != std::string::npos) stray.push_back(it->path());
+  }
+  for (const fs::path& p : stray) {
+    ROTOSCAN_LOG(kInfo) << "removing " << p.string() << " (left by an interrupted write)";
+    fs::remove_all(p, ec);
+  }
+}
+
+// True when the frame on disk decodes to an image (a 0-byte or torn file is rendered again).
+bool FrameDecodes(const fs::path& path) {
+  try {
+    return !cv::imread(path.string(), cv::IMREAD_UNCHANGED).empty();
+  } catch (const cv::Exception&) {
+    return false;
+  }
+}
 
 // Locks `directory`/.lock; returns the descriptor, or an error when another process holds it.
 Result<int> LockDirectory(const fs::path& directory, const fs::path& final_dir) {
@@ -518,6 +552,10 @@ Result<std::vector<FrameRecord>> ReadJournal(const fs::path& working, const std:
   ROTOSCAN_ASSIGN_OR_RETURN(Bundle parsed, ParseBundleJson(root.dump(), journal_path.string()));
   for (FrameRecord& f : parsed.frames) {
     if (!fs::is_regular_file(working / f.file, ec)) continue;  // recorded, then lost: write it again
+    if (!FrameDecodes(working / f.file)) {
+      ROTOSCAN_LOG(kInfo) << (working / f.file).string() << " does not decode: it is rendered again";
+      continue;
+    }
     // A frame written twice (replaced on an earlier resume) keeps its last record.
     frames.erase(std::remove_if(frames.begin(), frames.end(),
                                 [&](const FrameRecord& g) { return g.file == f.file; }),
@@ -537,17 +575,21 @@ BundleWriter::BundleWriter(fs::path final_dir, fs::path working, BundleHeader he
 
 Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& directory,
                                                            const BundleHeader& header,
-                                                           const Options& options) {
+                                                           const Options& options,
+                                                           const std::string& run_hash_now) {
   ROTOSCAN_RETURN_IF_ERROR(ValidateHeader(header));
   std::error_code ec;
   fs::path final_dir = directory;
   if (final_dir.filename().empty()) final_dir = final_dir.parent_path();  // "out/" -> "out"
-  if (fs::exists(final_dir, ec) && !options.overwrite) {
+  const fs::path working = PartialDirectory(final_dir);
+  // An interrupted overwrite is resumed as one: it replaces the old bundle when it finishes.
+  Options effective = options;
+  if (options.resume && fs::exists(working / kOverwriteFile, ec)) effective.overwrite = true;
+  if (fs::exists(final_dir, ec) && !effective.overwrite) {
     return FailedPreconditionError(final_dir.string() + " exists already (overwrite it explicitly)");
   }
-  const fs::path working = PartialDirectory(final_dir);
   const std::string header_text = BundleJson(header, {});
-  std::unique_ptr<BundleWriter> writer(new BundleWriter(final_dir, working, header, options));
+  std::unique_ptr<BundleWriter> writer(new BundleWriter(final_dir, working, header, effective));
   if (fs::is_directory(working, ec)) {
     ROTOSCAN_ASSIGN_OR_RETURN(writer->lock_fd_, LockDirectory(working, final_dir));
     if (options.resume) {
@@ -557,6 +599,14 @@ Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& direc
                                        " was started with other settings: it cannot be resumed with these "
                                        "(start again with overwrite, or use the same settings)");
       }
+      auto run_hash = ReadFile(working / kRunHashFile, kMaxJsonBytes);
+      if (!run_hash.ok() || *run_hash != run_hash_now) {
+        return FailedPreconditionError("the interrupted bundle in " + working.string() +
+                                       " was started with another scene or other options (run hash " +
+                                       (run_hash.ok() ? *run_hash : std::string("missing")) + ", now " +
+                                       run_hash_now + "): it cannot be resumed with these");
+      }
+      RemoveStrayTemporaries(working);
       ROTOSCAN_ASSIGN_OR_RETURN(writer->frames_, ReadJournal(working, header_text));
       // The journal is rewritten with the records kept, so that a torn last line is not continued.
       std::string journal;
@@ -584,6 +634,10 @@ Result<std::unique_ptr<BundleWriter>> BundleWriter::Create(const fs::path& direc
   if (!ec) fs::create_directories(working / "truth", ec);
   if (ec) return IoError("cannot create " + working.string() + ": " + ec.message());
   ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kHeaderFile, header_text));
+  if (writer->started_) {
+    ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kRunHashFile, run_hash_now));
+    if (options.overwrite) ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(working / kOverwriteFile, ""));
+  }
   const fs::path journal_path = working / kJournalFile;
   writer->journal_ = std::fopen(journal_path.c_str(), "ae");
   if (writer->journal_ == nullptr) {
@@ -711,6 +765,8 @@ Status BundleWriter::Finish() {
   fs::remove(working_ / kJournalFile, ec);
   fs::remove(working_ / kHeaderFile, ec);
   fs::remove(working_ / kLockFile, ec);
+  fs::remove(working_ / kRunHashFile, ec);
+  fs::remove(working_ / kOverwriteFile, ec);
   Status s = WriteAtomically(final_, [&](const fs::path& temporary) -> Status {
     std::error_code rename_error;
     fs::rename(working_, temporary, rename_error);

@@ -45,10 +45,7 @@ std::vector<Eigen::Vector3d> CheckerboardPattern::CornersInTarget() const {
 Result<CheckerboardPattern> ParsePattern(const std::string& text, double square_mm) {
   CheckerboardPattern pattern;
   pattern.square_mm = square_mm;
-  char x = 0;
-  char extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &pattern.cols, &x, &pattern.rows, &extra) != 3 ||
-      (x != 'x' && x != 'X')) {
+  if (!internal::ParseColsByRows(text, &pattern.cols, &pattern.rows)) {
     return InvalidArgumentError("pattern '" + text + "' is not COLSxROWS (inner corners, e.g. 9x6)");
   }
   ROTOSCAN_RETURN_IF_ERROR(pattern.Check());
@@ -142,32 +139,33 @@ Result<CameraCalibration> CalibrateCameraFromDirectory(const std::filesystem::pa
 
 Status WriteCameraYaml(const std::filesystem::path& path, const CameraCalibration& calibration) {
   ROTOSCAN_RETURN_IF_ERROR(calibration.camera.Validate().WithContext("refusing to write " + path.string()));
-  return WriteAtomically(path, [&](const std::filesystem::path& tmp) -> Status {
-    try {
-      cv::FileStorage fs(tmp.string(), cv::FileStorage::WRITE | cv::FileStorage::FORMAT_YAML);
-      if (!fs.isOpened()) return IoError("cannot create " + tmp.string());
-      const geometry::CameraModel& c = calibration.camera;
-      fs << "image_width" << c.width << "image_height" << c.height;
-      fs << "K" << (cv::Mat_<double>(3, 3) << c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1);
-      fs << "distortion" << cv::Mat(std::vector<double>(c.distortion.begin(), c.distortion.end()), true);
-      fs << "rms_px" << calibration.rms_px;
-      fs << "per_view_rms_px" << cv::Mat(calibration.per_view_rms_px, true);
-      fs << "views"
-         << "[";
-      for (const auto& v : calibration.views) fs << v;
-      fs << "]";
-      fs << "intrinsics_std"
-         << cv::Mat(std::vector<double>(calibration.intrinsics_std.begin(), calibration.intrinsics_std.end()),
-                    true);
-      fs << "distortion_std"
-         << cv::Mat(std::vector<double>(calibration.distortion_std.begin(), calibration.distortion_std.end()),
-                    true);
-      fs.release();
-    } catch (const cv::Exception& e) {
-      return IoError("writing " + path.string() + ": " + e.msg);
-    }
-    return Status::Ok();
-  });
+  // Written to memory first: FileStorage does not report a failed write (a full disk).
+  std::string text;
+  try {
+    cv::FileStorage fs(".yaml", cv::FileStorage::WRITE | cv::FileStorage::MEMORY |
+                                  cv::FileStorage::FORMAT_YAML);
+    if (!fs.isOpened()) return InternalError("cannot start the YAML of " + path.string());
+    const geometry::CameraModel& c = calibration.camera;
+    fs << "image_width" << c.width << "image_height" << c.height;
+    fs << "K" << (cv::Mat_<double>(3, 3) << c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1);
+    fs << "distortion" << cv::Mat(std::vector<double>(c.distortion.begin(), c.distortion.end()), true);
+    fs << "rms_px" << calibration.rms_px;
+    fs << "per_view_rms_px" << cv::Mat(calibration.per_view_rms_px, true);
+    fs << "views"
+       << "[";
+    for (const auto& v : calibration.views) fs << v;
+    fs << "]";
+    fs << "intrinsics_std"
+       << cv::Mat(std::vector<double>(calibration.intrinsics_std.begin(), calibration.intrinsics_std.end()),
+                  true);
+    fs << "distortion_std"
+       << cv::Mat(std::vector<double>(calibration.distortion_std.begin(), calibration.distortion_std.end()),
+                  true);
+    text = fs.releaseAndGetString();
+  } catch (const cv::Exception& e) {
+    return IoError("writing " + path.string() + ": " + e.msg);
+  }
+  return WriteFileAtomically(path, text);
 }
 
 }  // namespace rotoscan::calib

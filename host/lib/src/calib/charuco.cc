@@ -157,9 +157,7 @@ std::string CharucoBoard::ToString() const {
 Result<CharucoBoard> ParseCharucoBoard(const std::string& squares, double square_mm, double marker_mm,
                                        const std::string& dictionary) {
   CharucoBoard board;
-  char x = 0, extra = 0;
-  if (std::sscanf(squares.c_str(), "%d%c%d%c", &board.squares_x, &x, &board.squares_y, &extra) != 3 ||
-      (x != 'x' && x != 'X')) {
+  if (!internal::ParseColsByRows(squares, &board.squares_x, &board.squares_y)) {
     return InvalidArgumentError("ChArUco board '" + squares + "' is not COLSxROWS (squares, e.g. 7x5)");
   }
   board.square_mm = square_mm;

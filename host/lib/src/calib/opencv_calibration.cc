@@ -1,6 +1,7 @@
 #include "opencv_calibration.h"
 
 #include <algorithm>
+#include <charconv>
 #include <cctype>
 #include <cmath>
 
@@ -92,6 +93,21 @@ Result<CameraCalibration> CalibrateCorrespondences(
   return out;
 }
 
+bool ParseColsByRows(const std::string& text, int* cols, int* rows) {
+  const char* const end = text.data() + text.size();
+  const char* p = text.data();
+  auto number = [&](int* value) {
+    if (p == end || !std::isdigit(static_cast<unsigned char>(*p))) return false;  // no sign, no space
+    const std::from_chars_result r = std::from_chars(p, end, *value);
+    if (r.ec != std::errc()) return false;  // result_out_of_range: "4294967305" is not 9
+    p = r.ptr;
+    return true;
+  };
+  if (!number(cols) || p == end || (*p != 'x' && *p != 'X')) return false;
+  ++p;
+  return number(rows) && p == end;
+}
+
 Result<ImageFolder> ReadImageFolder(
     const std::filesystem::path& directory, const std::string& target, int min_views,
     const std::string& progress_label, Progress* progress,
@@ -116,7 +132,12 @@ Result<ImageFolder> ReadImageFolder(
   for (const auto& file : files) {
     if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
     scope.Advance();
-    const cv::Mat image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
+    cv::Mat image;
+    try {
+      image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
+    } catch (const cv::Exception& e) {  // a header declaring more pixels than OpenCV allows: skip it too
+      image.release();
+    }
     const std::string name = file.filename().string();
     if (image.empty()) {
       folder.rejected.push_back(name + ": unreadable image");

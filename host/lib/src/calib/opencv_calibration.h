@@ -44,6 +44,9 @@ struct ImageFolder {
   int files = 0, readable = 0;
   std::vector<std::string> rejected;  // "name: reason"
 };
+// "COLSxROWS" (or "COLSXROWS") as two positive ints; false on anything else, an overflow included.
+bool ParseColsByRows(const std::string& text, int* cols, int* rows);
+
 Result<ImageFolder> ReadImageFolder(
     const std::filesystem::path& directory, const std::string& target, int min_views,
     const std::string& progress_label, Progress* progress,

@@ -697,47 +697,48 @@ Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibrat
   ROTOSCAN_RETURN_IF_ERROR(
       calibration.estimate.rig.Validate().WithContext("refusing to write " + path.string()));
   const RigCalibrationSummary& s = calibration.summary;
-  return WriteAtomically(path, [&](const std::filesystem::path& tmp) -> Status {
-    try {
-      cv::FileStorage fs(tmp.string(), cv::FileStorage::WRITE | cv::FileStorage::FORMAT_YAML);
-      if (!fs.isOpened()) return IoError("cannot create " + tmp.string());
-      geometry::WriteRigNodes(fs, calibration.estimate.rig);
-      fs << "report_passed" << (s.passed ? 1 : 0);
-      fs << "report_failures"
-         << "[";
-      for (const auto& f : s.failures) fs << f;
-      fs << "]";
-      fs << "rms_px" << s.rms_px;
-      std::vector<double> view_rms;
-      fs << "per_view_names"
-         << "[";
-      for (const auto& v : s.per_view) {
-        fs << v.name;
-        view_rms.push_back(v.rms_px);
-      }
-      fs << "]";
-      fs << "per_view_rms_px" << cv::Mat(view_rms, true);
-      fs << "laser_left_rms_mm" << s.laser_rms_mm[0] << "laser_right_rms_mm" << s.laser_rms_mm[1];
-      fs << "laser_left_points" << s.laser_points[0] << "laser_right_points" << s.laser_points[1];
-      fs << "axis_fit_rms_mm" << s.axis_fit_rms_mm << "angle_scale" << s.angle_scale;
-      fs << "table_origin_on_table_top" << static_cast<int>(s.table_origin_on_table_top);
-      fs << "solver_termination" << s.termination << "solver_iterations" << s.iterations;
-      const StdDevs& d = s.std_devs;
-      fs << "std_valid" << (d.valid ? 1 : 0);
-      fs << "std_intrinsics" << cv::Mat(std::vector<double>(d.intrinsics.begin(), d.intrinsics.end()), true);
-      fs << "std_distortion" << cv::Mat(std::vector<double>(d.distortion.begin(), d.distortion.end()), true);
-      fs << "std_laser_normal_deg"
-         << cv::Mat(std::vector<double>(d.laser_normal_deg.begin(), d.laser_normal_deg.end()), true);
-      fs << "std_laser_offset_mm"
-         << cv::Mat(std::vector<double>(d.laser_offset_mm.begin(), d.laser_offset_mm.end()), true);
-      fs << "std_axis_direction_deg" << d.axis_direction_deg << "std_axis_point_mm" << d.axis_point_mm;
-      fs << "std_angle_scale" << d.angle_scale;
-      fs.release();
-    } catch (const cv::Exception& ex) {
-      return IoError("writing " + path.string() + ": " + ex.msg);
+  // Written to memory first: FileStorage does not report a failed write (a full disk).
+  std::string text;
+  try {
+    cv::FileStorage fs(".yaml", cv::FileStorage::WRITE | cv::FileStorage::MEMORY |
+                                  cv::FileStorage::FORMAT_YAML);
+    if (!fs.isOpened()) return InternalError("cannot start the YAML of " + path.string());
+    geometry::WriteRigNodes(fs, calibration.estimate.rig);
+    fs << "report_passed" << (s.passed ? 1 : 0);
+    fs << "report_failures"
+       << "[";
+    for (const auto& f : s.failures) fs << f;
+    fs << "]";
+    fs << "rms_px" << s.rms_px;
+    std::vector<double> view_rms;
+    fs << "per_view_names"
+       << "[";
+    for (const auto& v : s.per_view) {
+      fs << v.name;
+      view_rms.push_back(v.rms_px);
     }
-    return Status::Ok();
-  });
+    fs << "]";
+    fs << "per_view_rms_px" << cv::Mat(view_rms, true);
+    fs << "laser_left_rms_mm" << s.laser_rms_mm[0] << "laser_right_rms_mm" << s.laser_rms_mm[1];
+    fs << "laser_left_points" << s.laser_points[0] << "laser_right_points" << s.laser_points[1];
+    fs << "axis_fit_rms_mm" << s.axis_fit_rms_mm << "angle_scale" << s.angle_scale;
+    fs << "table_origin_on_table_top" << static_cast<int>(s.table_origin_on_table_top);
+    fs << "solver_termination" << s.termination << "solver_iterations" << s.iterations;
+    const StdDevs& d = s.std_devs;
+    fs << "std_valid" << (d.valid ? 1 : 0);
+    fs << "std_intrinsics" << cv::Mat(std::vector<double>(d.intrinsics.begin(), d.intrinsics.end()), true);
+    fs << "std_distortion" << cv::Mat(std::vector<double>(d.distortion.begin(), d.distortion.end()), true);
+    fs << "std_laser_normal_deg"
+       << cv::Mat(std::vector<double>(d.laser_normal_deg.begin(), d.laser_normal_deg.end()), true);
+    fs << "std_laser_offset_mm"
+       << cv::Mat(std::vector<double>(d.laser_offset_mm.begin(), d.laser_offset_mm.end()), true);
+    fs << "std_axis_direction_deg" << d.axis_direction_deg << "std_axis_point_mm" << d.axis_point_mm;
+    fs << "std_angle_scale" << d.angle_scale;
+    text = fs.releaseAndGetString();
+  } catch (const cv::Exception& ex) {
+    return IoError("writing " + path.string() + ": " + ex.msg);
+  }
+  return WriteFileAtomically(path, text);
 }
 
 std::string SummaryToJson(const RigCalibrationSummary& s) {

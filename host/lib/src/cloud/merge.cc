@@ -28,7 +28,9 @@ class CellIndex {
   }
   uint64_t Key(const Eigen::Vector3f& p, int dx = 0, int dy = 0, int dz = 0) const {
     auto c = [&](float v, int d) {
-      return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v / cell_)) + d + (1 << 20)) & 0x1FFFFF;
+      // Clamped before the conversion: a point at 1e30 mm (an absurd calibration) must not overflow it.
+      const double cell = std::max(-1e15, std::min(1e15, std::floor(static_cast<double>(v) / cell_)));
+      return static_cast<uint64_t>(static_cast<int64_t>(cell) + d + (1 << 20)) & 0x1FFFFF;
     };
     return c(p.x(), dx) | (c(p.y(), dy) << 21) | (c(p.z(), dz) << 42);
   }

@@ -121,6 +121,13 @@ std::string EncodePly(const PointCloud& cloud) {
 }
 
 Status WritePly(const std::filesystem::path& path, const PointCloud& cloud) {
+  // Never write what ReadPly rejects.
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.points[i].position_in_table.allFinite()) {
+      return InvalidArgumentError("refusing to write " + path.string() + ": point " + std::to_string(i) +
+                                  " is not finite");
+    }
+  }
   return WriteFileAtomically(path, EncodePly(cloud)).WithContext("writing " + path.string());
 }
 
@@ -134,7 +141,16 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
                              const PlyReadOptions& options) {
   auto corrupt = [&](const std::string& why) { return CorruptDataError(name + ": " + why); };
   // Header: text lines up to "end_header\n", bounded.
-  const size_t header_end = bytes.find("end_header");
+  // "end_header" as a whole line: a comment may contain the word.
+  size_t header_end = std::string::npos;
+  for (size_t at = bytes.find("\nend_header"); at != std::string::npos && at < (1 << 20);
+       at = bytes.find("\nend_header", at + 1)) {
+    const size_t after = at + 11;
+    if (after == bytes.size() || bytes[after] == '\n' || bytes[after] == '\r' || bytes[after] == ' ') {
+      header_end = at + 1;
+      break;
+    }
+  }
   if (bytes.compare(0, 4, "ply\n") != 0 && bytes.compare(0, 5, "ply\r\n") != 0) {
     return corrupt("not a PLY file (no 'ply' magic)");
   }

@@ -1,5 +1,6 @@
 #include "rotoscan/geometry/camera.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -32,6 +33,32 @@ Status CameraModel::Validate() const {
   if (fx <= 0 || fy <= 0) return InvalidArgumentError("camera focal lengths fx, fy must be > 0");
   for (double k : distortion) {
     if (!std::isfinite(k)) return InvalidArgumentError("camera distortion coefficients must be finite");
+  }
+  return Status::Ok();
+}
+
+Status CameraModel::CheckInvertible() const {
+  ROTOSCAN_RETURN_IF_ERROR(Validate());
+  if (!HasDistortion()) return Status::Ok();
+  // The inverse fails first where the distortion is strongest, at the border: walk it (one pixel outside
+  // the image, as the renderer's ray grid does) and a coarse grid inside, every few pixels.
+  auto bad = [&](double x, double y) {
+    const Eigen::Vector2d pixel(x, y);
+    const Eigen::Vector2d n = Undistort(pixel);
+    if (!n.allFinite()) return true;
+    const Eigen::Vector2d back = Project(Eigen::Vector3d(n.x(), n.y(), 1.0));
+    return !back.allFinite() || (back - pixel).norm() > 1e-3;
+  };
+  const int step = std::max(1, std::min(width, height) / 64);
+  for (int y = -1; y <= height; y += (y < 0 || y + step > height) ? 1 : step) {
+    const bool edge_row = y < 0 || y >= height - 1;
+    for (int x = -1; x <= width; x += (edge_row || x < 0 || x + step > width) ? 1 : step) {
+      if (bad(x, y)) {
+        return InvalidArgumentError("the lens distortion cannot be inverted at pixel (" + std::to_string(x) +
+                                    ", " + std::to_string(y) +
+                                    "): the field of view is too wide for these distortion coefficients");
+      }
+    }
   }
   return Status::Ok();
 }

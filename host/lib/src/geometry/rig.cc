@@ -20,9 +20,16 @@ bool IsFinite(const Eigen::Vector3d& v) {
   return v.allFinite();
 }
 
+// Farther than any turntable rig: a calibration with such a value is corrupt (and overflows downstream).
+constexpr double kMaxRigDistanceMm = 1e5;
+
 Status ValidatePlane(const Plane& plane, const char* name) {
   if (!IsFinite(plane.normal) || !std::isfinite(plane.offset)) {
     return InvalidArgumentError(std::string(name) + " must be finite");
+  }
+  if (std::abs(plane.offset) > kMaxRigDistanceMm) {
+    return InvalidArgumentError(std::string(name) + " offset " + std::to_string(plane.offset) +
+                                " mm is beyond any turntable scanner (more than 100 m from the camera)");
   }
   if (std::abs(plane.normal.norm() - 1.0) > 1e-6) {
     return InvalidArgumentError(std::string(name) + " normal must have unit length, has " +
@@ -59,10 +66,16 @@ Status Rig::Validate() const {
   ROTOSCAN_RETURN_IF_ERROR(ValidatePlane(laser_plane[0], "laser_left_plane"));
   ROTOSCAN_RETURN_IF_ERROR(ValidatePlane(laser_plane[1], "laser_right_plane"));
   if (!IsFinite(axis_point_in_cam)) return InvalidArgumentError("axis_point must be finite");
+  if (axis_point_in_cam.norm() > kMaxRigDistanceMm) {
+    return InvalidArgumentError("axis_point is " + std::to_string(axis_point_in_cam.norm()) +
+                                " mm from the camera: beyond any turntable scanner (more than 100 m)");
+  }
   if (!IsFinite(axis_direction_in_cam) || std::abs(axis_direction_in_cam.norm() - 1.0) > 1e-6) {
     return InvalidArgumentError("axis_direction must be a finite unit vector");
   }
-  if (!std::isfinite(step_angle_rad)) return InvalidArgumentError("step_angle_deg must be finite");
+  if (!std::isfinite(step_angle_rad) || std::abs(step_angle_rad) > DegToRad(360.0)) {
+    return InvalidArgumentError("step_angle_deg must be finite and within one turn");
+  }
   return Status::Ok();
 }
 
@@ -132,33 +145,42 @@ Result<Rig> ReadRigNodes(const cv::FileNode& root) {
 
 Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig) {
   ROTOSCAN_RETURN_IF_ERROR(rig.Validate().WithContext("refusing to write " + path.string()));
-  return WriteAtomically(path, [&](const std::filesystem::path& tmp) -> Status {
-    try {
-      cv::FileStorage storage(tmp.string(), cv::FileStorage::WRITE | cv::FileStorage::FORMAT_YAML);
-      if (!storage.isOpened()) return IoError("cannot create " + tmp.string());
-      WriteRigNodes(storage, rig);
-      storage.release();
-    } catch (const cv::Exception& e) {
-      return IoError("writing " + path.string() + ": " + e.msg);
-    }
-    return Status::Ok();
-  });
+  // Written to memory first: FileStorage does not report a failed write (a full disk).
+  std::string text;
+  try {
+    cv::FileStorage storage(".yaml", cv::FileStorage::WRITE | cv::FileStorage::MEMORY |
+                                  cv::FileStorage::FORMAT_YAML);
+    if (!storage.isOpened()) return InternalError("cannot start the YAML of " + path.string());
+    WriteRigNodes(storage, rig);
+    text = storage.releaseAndGetString();
+  } catch (const cv::Exception& e) {
+    return IoError("writing " + path.string() + ": " + e.msg);
+  }
+  return WriteFileAtomically(path, text);
+}
+
+Result<Rig> ParseRigYaml(const std::string& text, const std::string& name) {
+  try {
+    cv::FileStorage storage(text, cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_YAML);
+    if (!storage.isOpened()) return CorruptDataError(name + " is not an OpenCV YAML file");
+    Result<Rig> rig = ReadRigNodes(storage.root());
+    if (!rig.ok()) return rig.status().WithContext(name);
+    return rig;
+  } catch (const cv::Exception& e) {
+    return CorruptDataError(name + ": " + e.msg);
+  }
 }
 
 Result<Rig> ReadRigYaml(const std::filesystem::path& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
+    if (std::filesystem::exists(path, ec)) {
+      return InvalidArgumentError("calibration file " + path.string() + " is not a regular file");
+    }
     return NotFoundError("calibration file " + path.string() + " does not exist");
   }
-  try {
-    cv::FileStorage storage(path.string(), cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
-    if (!storage.isOpened()) return CorruptDataError(path.string() + " is not an OpenCV YAML file");
-    Result<Rig> rig = ReadRigNodes(storage.root());
-    if (!rig.ok()) return rig.status().WithContext(path.string());
-    return rig;
-  } catch (const cv::Exception& e) {
-    return CorruptDataError(path.string() + ": " + e.msg);
-  }
+  ROTOSCAN_ASSIGN_OR_RETURN(const std::string text, ReadFile(path, std::size_t{64} << 20));
+  return ParseRigYaml(text, path.string());
 }
 
 }  // namespace rotoscan::geometry

@@ -1387,8 +1387,16 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
 
 Result<cv::Mat> ReadImage8(const std::filesystem::path& path) {
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) return NotFoundError(path.string() + " does not exist");
-  cv::Mat image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    if (std::filesystem::exists(path, ec)) return InvalidArgumentError(path.string() + " is not a regular file");
+    return NotFoundError(path.string() + " does not exist");
+  }
+  cv::Mat image;
+  try {
+    image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {  // e.g. a header declaring more pixels than OpenCV allows
+    return CorruptDataError(path.string() + " cannot be decoded as an image: " + e.err);
+  }
   if (image.empty()) return CorruptDataError(path.string() + " cannot be decoded as an image");
   if (image.depth() != CV_8U)
     return InvalidArgumentError(path.string() + " is not 8-bit (only 8-bit is read)");

@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <chrono>
+#include <limits>
 #include <string>
 #include <thread>
 
@@ -19,7 +20,7 @@ namespace fs = std::filesystem;
 Status PoissonOptions::Check() const {
   if (depth < 4 || depth > 12)
     return InvalidArgumentError("Poisson depth must be in 4..12, got " + std::to_string(depth));
-  if (trim_density_quantile < 0 || trim_density_quantile >= 1) {
+  if (!(trim_density_quantile >= 0 && trim_density_quantile < 1)) {  // NaN too
     return InvalidArgumentError("trim_density_quantile must be in [0, 1)");
   }
   if (normal_neighbours < 3) return InvalidArgumentError("normal_neighbours must be >= 3");
@@ -77,8 +78,26 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
       (!cloud.colors.empty() && cloud.colors.size() != n)) {
     return InvalidArgumentError("point cloud arrays differ in length (points, normals, colors)");
   }
+  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d high = -low;
   for (const auto& p : cloud.points) {
     if (!p.allFinite()) return InvalidArgumentError("point cloud holds a non-finite point");
+    low = low.cwiseMin(p);
+    high = high.cwiseMax(p);
+  }
+  // Open3D's Poisson divides by the cloud's extent: a cloud without one (identical points, or points apart
+  // only at denormal scale) crashes it, and a cloud flat along an axis gives a surface of absurd size.
+  const Eigen::Vector3d extent = high - low;
+  const double largest = extent.maxCoeff();
+  const double magnitude = std::max({1.0, low.cwiseAbs().maxCoeff(), high.cwiseAbs().maxCoeff()});
+  if (!(largest > 1e-9 * magnitude) || !(largest > 1e-6)) {
+    return InvalidArgumentError("the cloud has no extent: its " + std::to_string(n) +
+                                " points lie within " + std::to_string(largest) + " mm of each other");
+  }
+  Eigen::Index flat_axis = 0;
+  if (!(extent.minCoeff(&flat_axis) > 1e-6 * largest)) {
+    return InvalidArgumentError(std::string("the cloud is flat: its points all lie in one plane along ") +
+                                "xyz"[flat_axis] + " (Poisson meshing needs a surface around a volume)");
   }
   ProgressScope scope(progress, "mesh", 3);
   const auto start = std::chrono::steady_clock::now();
@@ -118,6 +137,12 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
   scope.Advance();
   if (!o3d_mesh || o3d_mesh->triangles_.empty())
     return NotConvergedError("Poisson reconstruction produced no surface");
+  // The surface lies within the cloud's box grown by Open3D's scale (1.1): anything beyond is a failed solve.
+  for (const auto& v : o3d_mesh->vertices_) {
+    if (!v.allFinite() || ((v - low).array() < -largest).any() || ((v - high).array() > largest).any()) {
+      return NotConvergedError("Poisson reconstruction produced a surface outside the cloud's extent");
+    }
+  }
   const std::size_t before = o3d_mesh->vertices_.size();
   if (options.trim_density_quantile > 0 && !densities.empty()) {
     std::vector<double> sorted = densities;
@@ -141,12 +166,18 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
   return FromOpen3d(*o3d_mesh);
 }
 
-Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
-  static QuietOpen3d quiet;
+Status CheckMeshPath(const fs::path& path) {
   const std::string ext = path.extension().string();
   if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
     return InvalidArgumentError("mesh file " + path.string() + ": extension must be .ply, .obj or .stl");
   }
+  return Status::Ok();
+}
+
+Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
+  static QuietOpen3d quiet;
+  ROTOSCAN_RETURN_IF_ERROR(CheckMeshPath(path));
+  const std::string ext = path.extension().string();
   if (mesh.vertices.empty() || mesh.triangles.empty())
     return InvalidArgumentError("refusing to write an empty mesh");
   open3d::geometry::TriangleMesh o3d = ToOpen3d(mesh);
@@ -162,6 +193,15 @@ Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
     if (!ok) {
       fs::remove(with_ext, ec);
       return IoError("cannot write mesh " + path.string());
+    }
+    // Open3D does not report every failed write (a full disk truncates the file and it still says yes):
+    // read the file back and compare before it may replace the target.
+    open3d::geometry::TriangleMesh back;
+    const bool read_back = open3d::io::ReadTriangleMesh(with_ext.string(), back);
+    if (!read_back || back.triangles_.size() != o3d.triangles_.size() ||
+        (ext != ".stl" && back.vertices_.size() != o3d.vertices_.size())) {
+      fs::remove(with_ext, ec);
+      return IoError("cannot write mesh " + path.string() + ": the file written is incomplete (disk full?)");
     }
     fs::rename(with_ext, tmp, ec);
     if (ec) return IoError("cannot move " + with_ext.string() + ": " + ec.message());

@@ -78,6 +78,9 @@ Status ProcessOptions::Check() const {
   if (threads < 0 || threads > 256) return InvalidArgumentError("process: threads must be in [0, 256]");
   if (!use_laser[0] && !use_laser[1]) return InvalidArgumentError("process: no laser selected");
   if (!(max_neighbor_mm > 0)) return InvalidArgumentError("process: max_neighbor_mm must be > 0");
+  if (!(min_quality >= 0 && min_quality <= 1)) {  // NaN too
+    return InvalidArgumentError("process: min_quality must be in [0, 1], got " + std::to_string(min_quality));
+  }
   return Status::Ok();
 }
 
@@ -361,8 +364,12 @@ std::string FormatSummary(const ProcessSummary& s) {
   out << "points: left " << s.points_per_laser[0] << ", right " << s.points_per_laser[1] << ", with normal "
       << s.points_with_normal << "\n";
   const cloud::LaserDisagreement& d = s.merge.disagreement;
-  out << "laser disagreement: " << d.pairs << " pairs, mean offset " << d.mean_signed_mm << " mm, rms "
-      << d.rms_mm << " mm, median |d| " << d.median_abs_mm << " mm\n";
+  if (d.pairs == 0) {
+    out << "laser disagreement: not measured (no overlapping pair of points with normals)\n";
+  } else {
+    out << "laser disagreement: " << d.pairs << " pairs, mean offset " << d.mean_signed_mm << " mm, rms "
+        << d.rms_mm << " mm, median |d| " << d.median_abs_mm << " mm\n";
+  }
   out << "merge: kept left " << s.merge.left_out << " of " << s.merge.left_in << ", right "
       << s.merge.right_out << " of " << s.merge.right_in << " (" << s.merge.shared_voxels
       << " shared voxels) -> " << s.points_out << " points\n";

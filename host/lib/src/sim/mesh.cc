@@ -109,7 +109,12 @@ float Bilinear(const cv::Mat& tex, float x, float y, int channel) {
 Result<cv::Mat> LoadTexture(const fs::path& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return NotFoundError("texture " + path.string() + " not found");
-  cv::Mat image = cv::imread(path.string(), cv::IMREAD_COLOR);
+  cv::Mat image;
+  try {
+    image = cv::imread(path.string(), cv::IMREAD_COLOR);
+  } catch (const cv::Exception& e) {
+    return CorruptDataError("texture " + path.string() + " does not decode: " + e.err);
+  }
   if (image.empty()) return CorruptDataError("texture " + path.string() + " does not decode");
   cv::Mat texture;
   image.convertTo(texture, CV_32FC3, 1.0 / 255.0);

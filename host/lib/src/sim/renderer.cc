@@ -125,6 +125,8 @@ Renderer::~Renderer() = default;
 
 Result<std::unique_ptr<Renderer>> Renderer::Create(const Scene& scene) {
   ROTOSCAN_RETURN_IF_ERROR(scene.rig.Validate().WithContext("scene rig"));
+  // NaN rays abort Embree.
+  ROTOSCAN_RETURN_IF_ERROR(scene.rig.camera.CheckInvertible().WithContext("scene camera"));
   auto impl = std::make_unique<Impl>();
   impl->meshes.push_back(internal::MakeTableTop(scene.table_radius_mm, scene.table_albedo));
   for (std::size_t i = 0; i < scene.objects.size(); ++i) {

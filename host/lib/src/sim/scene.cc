@@ -175,7 +175,9 @@ Status ParseCamera(const json& j, Scene* scene) {
   RETURN_IF(r.Numbers<9>("color_matrix", -10.0, 10.0, s.color_matrix.data()));
   RETURN_IF(r.Bool("noise", &s.noise));
   RETURN_IF(r.Int("supersampling", 1, 8, &s.supersampling));
-  return c.Validate().WithContext("field 'camera'");
+  RETURN_IF(c.Validate().WithContext("field 'camera'"));
+  // A wide or off-centre view with the default distortion has no inverse at the border (NaN rays).
+  return c.CheckInvertible().WithContext("field 'camera' (hfov_deg, cx, cy, distortion)");
 }
 
 Status ParseLaser(const json& j, const std::string& name, Scene* scene, int index, bool* explicit_normal) {
@@ -343,6 +345,7 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
     RETURN_IF(top.String("preset", &preset));
     ROTOSCAN_ASSIGN_OR_RETURN(Scene scene, SceneDefaults(preset));
     scene.base_dir = base_dir;
+    scene.source = root.dump();
     double seed = 1;
     RETURN_IF(top.Number("seed", 0, 9007199254740992.0, &seed));
     scene.seed = static_cast<uint64_t>(seed);

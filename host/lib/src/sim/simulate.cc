@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -195,8 +196,16 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
     }
   }
 
-  ROTOSCAN_ASSIGN_OR_RETURN(
-      auto writer, bundle::BundleWriter::Create(options.out, header, {options.overwrite, options.resume}));
+  // Everything that decides the frames beyond the header: a resume with another scene, seed, kind, step
+  // count or truth setting is refused (FNV-1a 64 of them).
+  uint64_t hash = 14695981039346656037ull;
+  const std::string what = scene.source + "|kind " + std::to_string(static_cast<int>(kind)) + "|steps " +
+                           std::to_string(steps) + "|truth " + (options.truth ? "1" : "0");
+  for (const char c : what) hash = (hash ^ static_cast<unsigned char>(c)) * 1099511628211ull;
+  char hash_text[17];
+  std::snprintf(hash_text, sizeof(hash_text), "%016llx", static_cast<unsigned long long>(hash));
+  ROTOSCAN_ASSIGN_OR_RETURN(auto writer, bundle::BundleWriter::Create(
+                                             options.out, header, {options.overwrite, options.resume}, hash_text));
   const std::filesystem::path work = writer->working_directory();
   if (options.truth) {
     ROTOSCAN_RETURN_IF_ERROR(geometry::WriteRigYaml(work / "truth" / "rig.yaml", scene.rig));

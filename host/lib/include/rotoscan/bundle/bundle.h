@@ -175,8 +175,11 @@ class BundleWriter {
   // kFailedPrecondition if `directory` exists and overwrite is off, if an interrupted bundle is there and
   // neither resume nor overwrite is set, if it was started with another header, or if another process is
   // writing it. kCorruptData if its journal is damaged.
+  // `run_hash`: what produced the frames beyond the header (scene, seed, options), recorded in the partial
+  // bundle; resuming with another is refused (kFailedPrecondition), so that two runs never mix in one bundle.
   static Result<std::unique_ptr<BundleWriter>> Create(const std::filesystem::path& directory,
-                                                     const BundleHeader& header, const Options& options);
+                                                     const BundleHeader& header, const Options& options,
+                                                     const std::string& run_hash = "");
   static Result<std::unique_ptr<BundleWriter>> Create(const std::filesystem::path& directory,
                                                      const BundleHeader& header) {
     return Create(directory, header, Options{});

@@ -50,6 +50,11 @@ struct CameraModel {
   // OK, or kInvalidArgument naming what is wrong (non-positive size or focal length, non-finite values).
   Status Validate() const;
 
+  // OK when the lens model can be inverted over the whole image (every pixel's ray is finite and projects
+  // back onto the pixel); kInvalidArgument naming the first pixel where it cannot (a field of view too
+  // wide for the distortion coefficients: the inverse diverges and the ray is NaN).
+  Status CheckInvertible() const;
+
   Eigen::Matrix3d K() const;
   std::array<double, 4> Intrinsics() const { return {fx, fy, cx, cy}; }
   bool HasDistortion() const;

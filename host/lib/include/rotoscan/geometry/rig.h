@@ -53,6 +53,8 @@ struct Rig {
 // calibration adds its report (WriteRigNodes into its own FileStorage, then its own keys).
 Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig);  // atomic
 Result<Rig> ReadRigYaml(const std::filesystem::path& path);
+// The same from YAML text (`name` for messages): kCorruptData or kInvalidArgument, never an exception.
+Result<Rig> ParseRigYaml(const std::string& text, const std::string& name);
 void WriteRigNodes(cv::FileStorage& storage, const Rig& rig);
 Result<Rig> ReadRigNodes(const cv::FileNode& root);
 

@@ -55,6 +55,8 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
                                         PoissonSummary* summary = nullptr, Progress* progress = nullptr);
 
 // Writes .ply (binary, vertex colors), .obj or .stl by the extension of `path`, atomically.
+// kInvalidArgument unless `path` ends in .ply, .obj or .stl (checked before any work).
+Status CheckMeshPath(const std::filesystem::path& path);
 Status WriteMesh(const std::filesystem::path& path, const TriangleMesh& mesh);
 Result<TriangleMesh> ReadMesh(const std::filesystem::path& path);
 

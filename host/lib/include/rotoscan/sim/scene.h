@@ -127,6 +127,7 @@ struct ObjectSpec {
 struct Scene {
   std::string preset = "machine_vision";
   std::filesystem::path base_dir;  // directory of the scene file (relative paths)
+  std::string source;              // the JSON it was parsed from, normalised (what --resume compares)
   uint64_t seed = 1;
   int steps = 1200;
   geometry::Rig rig;  // camera model, laser planes, axis, step angle: the truth
