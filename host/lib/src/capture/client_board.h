@@ -43,6 +43,7 @@ class ClientBoard : public Board {
   Status AbortProgram() override;
   Result<std::optional<TriggerEdge>> NextTrigger(int64_t timeout_us, bool* program_done) override;
   Result<std::optional<uint32_t>> ResumeProgram() override;
+  Status KeepAlive() override { return client_->Ping().status(); }
   int lost_events() const override { return client_->stats().lost_events; }
 
   device::Client& client() { return *client_; }

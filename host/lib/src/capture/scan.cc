@@ -12,6 +12,7 @@ namespace rotoscan::capture {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+constexpr int64_t kKeepAliveUs = 400'000;  // our board's laser safety stops a program after 2 s of silence
 using bundle::LaserState;
 
 uint8_t MaskOf(LaserState s) {
@@ -179,8 +180,13 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
   const double period = 1e6 / o.frame_rate_hz;
   const int64_t wait_after_done = static_cast<int64_t>(4 * period) + o.natural_exposure_us + 200'000;
   // Frames and edges are written per step as soon as the step's shots have all been seen.
+  int64_t last_alive = run.clock.NowUs();
   while (true) {
     ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
+    if (!done && run.clock.NowUs() - last_alive > kKeepAliveUs) {
+      ROTOSCAN_RETURN_IF_ERROR(run.board.KeepAlive());
+      last_alive = run.clock.NowUs();
+    }
     while (true) {
       bool program_done = false;
       ROTOSCAN_ASSIGN_OR_RETURN(auto edge, run.board.NextTrigger(0, &program_done));

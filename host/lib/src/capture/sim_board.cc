@@ -208,6 +208,7 @@ class SimBoardHolder : public Board {
   }
   Result<std::optional<uint32_t>> ResumeProgram() override { return board_->ResumeProgram(); }
   int lost_events() const override { return board_->lost_events(); }
+  Status KeepAlive() override { return board_->KeepAlive(); }
   RigTruth* truth() override { return truth_.get(); }
 
  private:

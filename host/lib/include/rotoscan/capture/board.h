@@ -94,6 +94,9 @@ class Board {
   // After an unplug or a safety stop: restarts the program where the board says it stopped (nullopt when
   // it had finished).
   virtual Result<std::optional<uint32_t>> ResumeProgram();
+  // Tells the board the host is alive, during a long program with no other command (our board stops a
+  // program and turns the lasers off after a silence: laser safety). Call it at least every 0.5 s.
+  virtual Status KeepAlive() { return Status::Ok(); }
   // Lost trigger events seen so far (gaps in the board's counter).
   virtual int lost_events() const { return 0; }
 
