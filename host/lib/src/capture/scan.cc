@@ -180,6 +180,60 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
   const double period = 1e6 / o.frame_rate_hz;
   const int64_t wait_after_done = static_cast<int64_t>(4 * period) + o.natural_exposure_us + 200'000;
   // Frames and edges are written per step as soon as the step's shots have all been seen.
+  std::set<uint32_t> taken;
+  std::set<std::pair<int, int>> got;  // (step, shot)
+  std::optional<int64_t> previous_d;
+  size_t tied = 0;
+  // Ties frame `i` to its trigger edge: by time first (the edge on the host clock vs the frame's exposure
+  // start), then by sequence: frame id - trigger seq must agree with the previous tied frame's or the next
+  // frame's, else the frame is not used (a dropped or extra frame shifts it, a lost event leaves no edge).
+  auto candidate = [&](size_t i) -> std::optional<uint32_t> {
+    const int64_t t = frames[i].exposure_start_us;
+    const TriggerEdge* best = nullptr;
+    for (auto it = edges.begin(); it != edges.end(); ++it) {
+      const int64_t err = std::llabs(it->second.host_us - t);
+      if (err <= o.match_tolerance_us && (best == nullptr || err < std::llabs(best->host_us - t))) best = &it->second;
+    }
+    if (best == nullptr) return std::nullopt;
+    return best->event.trigger_seq;
+  };
+  auto d_of = [&](size_t i, uint32_t seq) {
+    return static_cast<int64_t>(frames[i].frame_id) - static_cast<int64_t>(seq);
+  };
+  auto tie = [&](size_t i, bool last) -> Status {
+    const auto seq = candidate(i);
+    if (!seq) {
+      ++run.summary.frames_unmatched;
+      return Status::Ok();
+    }
+    const int64_t d = d_of(i, *seq);
+    std::optional<uint32_t> next_seq;
+    if (!last && i + 1 < frames.size()) next_seq = candidate(i + 1);
+    const bool agrees = (previous_d && *previous_d == d) || (next_seq && d_of(i + 1, *next_seq) == d) ||
+                        (!previous_d && !next_seq);
+    if (!agrees || taken.count(*seq) != 0) {
+      ++run.summary.frames_unmatched;
+      return Status::Ok();
+    }
+    const TriggerEdge& edge = edges.at(*seq);
+    if (!edge.event.step_index || edge.event.shot >= shots.size()) {
+      ++run.summary.frames_unmatched;
+      return Status::Ok();
+    }
+    const int step = static_cast<int>(*edge.event.step_index) + step_offset;
+    const LaserState laser = shots[edge.event.shot];
+    if (edge.event.laser_mask != MaskOf(laser) || frames[i].exposure_us != ExposureOf(o, laser)) {
+      ++run.summary.frames_unmatched;
+      return Status::Ok();
+    }
+    previous_d = d;
+    taken.insert(*seq);
+    got.insert({step, edge.event.shot});
+    if (run.Done(step, laser)) return Status::Ok();  // a re-take's shot that was fine the first time
+    Status written = run.Write(step, laser, frames[i], *seq, edge.event.time_us);
+    frames[i].image.release();  // written: the memory goes back (ids and times stay for the neighbours)
+    return written;
+  };
   int64_t last_alive = run.clock.NowUs();
   while (true) {
     ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
@@ -202,6 +256,9 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
       run.Count(*frame);
       frames.push_back(std::move(*frame));
       quiet_since = run.clock.NowUs();
+      // Two frames later the edges of a frame and of the next have surely arrived: tie it now, so the
+      // bundle, the progress and live processing follow the scan.
+      while (tied + 2 < frames.size()) ROTOSCAN_RETURN_IF_ERROR(tie(tied++, false));
     }
     const int expected = step_count * static_cast<int>(shots.size());
     if (done && (static_cast<int>(frames.size()) >= expected || run.clock.NowUs() - quiet_since > wait_after_done)) {
@@ -219,53 +276,7 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
       quiet_since = run.clock.NowUs();
     }
   }
-  // Tie frames to edges: by time first (the edge on the host clock vs the frame's exposure start), then
-  // by sequence: frame id - trigger seq must agree with a neighbour's, else the frame is not used.
-  std::vector<std::pair<size_t, uint32_t>> candidates;  // frame index, seq
-  std::vector<TriggerEdge> sorted;
-  for (const auto& [seq, e] : edges) sorted.push_back(e);
-  std::sort(sorted.begin(), sorted.end(), [](const auto& a, const auto& b) { return a.host_us < b.host_us; });
-  for (size_t i = 0; i < frames.size(); ++i) {
-    const int64_t t = frames[i].exposure_start_us;
-    auto it = std::lower_bound(sorted.begin(), sorted.end(), t - o.match_tolerance_us,
-                               [](const TriggerEdge& e, int64_t v) { return e.host_us < v; });
-    const TriggerEdge* best = nullptr;
-    for (; it != sorted.end() && it->host_us <= t + o.match_tolerance_us; ++it) {
-      if (best == nullptr || std::llabs(it->host_us - t) < std::llabs(best->host_us - t)) best = &*it;
-    }
-    if (best != nullptr) candidates.emplace_back(i, best->event.trigger_seq);
-  }
-  std::set<uint32_t> taken;
-  std::set<std::pair<int, int>> got;  // (step, shot)
-  for (size_t k = 0; k < candidates.size(); ++k) {
-    const auto [i, seq] = candidates[k];
-    const auto d = static_cast<int64_t>(frames[i].frame_id) - static_cast<int64_t>(seq);
-    auto d_of = [&](size_t j) {
-      return static_cast<int64_t>(frames[candidates[j].first].frame_id) - static_cast<int64_t>(candidates[j].second);
-    };
-    const bool agrees = (k > 0 && d_of(k - 1) == d) || (k + 1 < candidates.size() && d_of(k + 1) == d) ||
-                        candidates.size() == 1;
-    if (!agrees || taken.count(seq) != 0) {
-      ++run.summary.frames_unmatched;
-      continue;
-    }
-    const TriggerEdge& edge = edges.at(seq);
-    if (!edge.event.step_index || edge.event.shot >= shots.size()) {
-      ++run.summary.frames_unmatched;
-      continue;
-    }
-    const int step = static_cast<int>(*edge.event.step_index) + step_offset;
-    const LaserState laser = shots[edge.event.shot];
-    if (edge.event.laser_mask != MaskOf(laser) || frames[i].exposure_us != ExposureOf(o, laser)) {
-      ++run.summary.frames_unmatched;
-      continue;
-    }
-    taken.insert(seq);
-    got.insert({step, edge.event.shot});
-    if (run.Done(step, laser)) continue;  // a re-take's shot that was fine the first time
-    ROTOSCAN_RETURN_IF_ERROR(run.Write(step, laser, frames[i], seq, edge.event.time_us));
-  }
-  run.summary.frames_unmatched += static_cast<int>(frames.size() - candidates.size());
+  for (; tied < frames.size(); ++tied) ROTOSCAN_RETURN_IF_ERROR(tie(tied, tied + 1 == frames.size()));
   std::vector<Shot> missing;
   for (int s = first_step + step_offset; s < step_offset + step_count; ++s) {
     for (size_t k = 0; k < shots.size(); ++k) {

@@ -283,7 +283,7 @@ Result<std::unique_ptr<Camera>> OpenVirtualCamera(const std::string& argument, c
     sim::ObjectSpec sphere;  // a sphere on the table, as `rotoscan simulate` has by default
     sphere.type = sim::ObjectType::kSphere;
     sphere.radius_mm = 30.0;
-    sphere.position_mm = Eigen::Vector3d(0, 0, 30);
+    sphere.position_mm = Eigen::Vector3d(0, 0, 0);  // resting on the table
     scene.objects.push_back(sphere);
   } else {
     ROTOSCAN_ASSIGN_OR_RETURN(scene, sim::LoadScene(context.scene_path));
