@@ -94,8 +94,10 @@ TEST_F(CaptureTest, FactoryErrors) {
 
 // Free-running, rolling shutter at 30 frames/s: every frame written was exposed, all rows, inside one laser
 // state, by the simulator's own record of the switches.
+// The camera delivers each frame 8 ms after its last row (a USB transfer): a change issued on its arrival
+// falls inside the next frame's exposure, which must then be refused.
 TEST_F(CaptureTest, FreeRunningRollingShutterNoFrameAcrossASwitch) {
-  Rig rig = Open({"rolling=1"});
+  Rig rig = Open({"rolling=1", "latency_ms=8"});
   ASSERT_TRUE(rig.camera->capabilities().rolling_shutter);
   ScanOptions o = Options(6);
   o.timing = Timing::kFreeRunning;

@@ -13,6 +13,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr int64_t kKeepAliveUs = 400'000;  // our board's laser safety stops a program after 2 s of silence
+constexpr int64_t kScheduleMarginUs = 200;  // after a frame's predicted end, before the next change
 using bundle::LaserState;
 
 uint8_t MaskOf(LaserState s) {
@@ -102,8 +103,45 @@ struct Run {
   }
 };
 
+struct Shot {
+  int step;
+  LaserState laser;
+};
+
 // ---- free-running ----
 
+// Puts the board and camera in the state of a shot (table, lasers, exposure); returns the interval in which
+// the changes took effect (earliest of the first, latest of the last), or nullopt when nothing changed.
+Result<std::optional<BoardChange>> Apply(Run& run, int step, LaserState s, int64_t* exposure) {
+  std::optional<BoardChange> all;
+  auto add = [&all](const BoardChange& c) {
+    if (!all) all = c;
+    all->latest_us = std::max(all->latest_us, c.latest_us);
+  };
+  if (std::abs(run.board.table_angle_rad() - step * run.step_rad) > 1e-9) {
+    ROTOSCAN_ASSIGN_OR_RETURN(const BoardChange c, run.board.MoveTo(step * run.step_rad));
+    add(c);
+  }
+  if (run.board.lasers() != MaskOf(s)) {
+    ROTOSCAN_ASSIGN_OR_RETURN(const BoardChange c, run.board.SetLasers(MaskOf(s)));
+    add(c);
+  }
+  const int64_t want = ExposureOf(run.options, s);
+  if (want != *exposure) {
+    BoardChange c;
+    c.earliest_us = run.clock.NowUs();
+    ROTOSCAN_RETURN_IF_ERROR(run.camera.SetExposure(want));
+    c.latest_us = run.clock.NowUs();
+    *exposure = want;
+    add(c);
+  }
+  return all;
+}
+
+// Frames are judged by their exposure windows; the change to the next shot is scheduled at the predicted
+// end of the frame that will serve the current one (from the measured frame period), before that frame
+// has even arrived, so that a camera's delivery latency costs no frame. A wrong prediction is seen in the
+// windows (the frame is refused and the shot taken again), never trusted.
 Status FreeRunning(Run& run) {
   const ScanOptions& o = run.options;
   CameraSettings settings = run.camera.settings();
@@ -113,56 +151,69 @@ Status FreeRunning(Run& run) {
   settings.exposure_us = o.lasers ? o.laser_exposure_us : o.natural_exposure_us;
   ROTOSCAN_RETURN_IF_ERROR(run.camera.Configure(settings).status());
   const int64_t uncertainty = run.camera.capabilities().timestamp_uncertainty_us;
+  const int64_t readout = run.camera.capabilities().readout_us;
   int64_t exposure = settings.exposure_us;
-  // The latest time any change may have taken effect: frames must start after it.
-  ROTOSCAN_ASSIGN_OR_RETURN(BoardChange change, run.board.SetLasers(0));
-  int64_t settled_us = change.latest_us;
-  ROTOSCAN_RETURN_IF_ERROR(run.camera.Start());
+  std::vector<Shot> targets;
   for (int step = 0; step < o.steps; ++step) {
-    if (run.StepDone(step)) continue;
-    ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
-    if (std::abs(run.board.table_angle_rad() - step * run.step_rad) > 1e-9) {
-      ROTOSCAN_ASSIGN_OR_RETURN(change, run.board.MoveTo(step * run.step_rad));
-      settled_us = std::max(settled_us, change.latest_us);
-    }
     for (LaserState s : Wanted(o, step)) {
-      if (run.Done(step, s)) continue;
-      if (run.board.lasers() != MaskOf(s)) {
-        ROTOSCAN_ASSIGN_OR_RETURN(change, run.board.SetLasers(MaskOf(s)));
-        settled_us = std::max(settled_us, change.latest_us);
+      if (!run.Done(step, s)) targets.push_back({step, s});
+    }
+  }
+  ROTOSCAN_ASSIGN_OR_RETURN(BoardChange first, run.board.SetLasers(0));
+  int64_t settled = first.latest_us;  // frames for the current shot must start after this
+  ROTOSCAN_RETURN_IF_ERROR(run.camera.Start());
+  size_t i = 0;
+  if (!targets.empty()) {
+    ROTOSCAN_ASSIGN_OR_RETURN(auto c, Apply(run, targets[0].step, targets[0].laser, &exposure));
+    if (c) settled = std::max(settled, c->latest_us);
+  }
+  std::optional<BoardChange> next;  // the change to shot i + 1, issued ahead
+  while (i < targets.size()) {
+    ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
+    const int64_t period = run.period_count > 0 ? std::llround(run.period_sum / run.period_count) : 0;
+    if (!next && i + 1 < targets.size() && period > 0 && run.last_frame_start) {
+      // The first frame starting after `settled` serves shot i; it ends at its start + readout + exposure.
+      int64_t start = *run.last_frame_start;
+      while (start - uncertainty <= settled) start += period;
+      const int64_t end = start + readout + exposure + uncertainty + kScheduleMarginUs;
+      if (end > run.clock.NowUs()) run.clock.WaitUntilUs(end);
+      ROTOSCAN_ASSIGN_OR_RETURN(auto c, Apply(run, targets[i + 1].step, targets[i + 1].laser, &exposure));
+      if (!c) c = BoardChange{run.clock.NowUs(), run.clock.NowUs(), 0, 0.0, false};
+      next = c;
+    }
+    ROTOSCAN_ASSIGN_OR_RETURN(auto frame, run.camera.NextFrame(o.frame_timeout_us));
+    if (!frame) {
+      return TimeoutError("no frame from " + run.camera.Description() + " within " +
+                          std::to_string(o.frame_timeout_us / 1000) + " ms");
+    }
+    run.Count(*frame);
+    const Shot& target = targets[i];
+    const bool after = frame->exposure_start_us - uncertainty > settled;
+    const bool before = !next || frame->ExposureEndUs() + uncertainty < next->earliest_us;
+    if (after && before && frame->exposure_us == ExposureOf(o, target.laser)) {
+      ROTOSCAN_RETURN_IF_ERROR(run.Write(target.step, target.laser, *frame, 0, frame->device_time_us.value_or(0)));
+      ++i;
+      if (next) {
+        settled = next->latest_us;
+        next.reset();
+      } else if (i < targets.size()) {
+        ROTOSCAN_ASSIGN_OR_RETURN(auto c, Apply(run, targets[i].step, targets[i].laser, &exposure));
+        if (c) settled = std::max(settled, c->latest_us);
       }
-      const int64_t want_exposure = ExposureOf(o, s);
-      if (want_exposure != exposure) {
-        ROTOSCAN_RETURN_IF_ERROR(run.camera.SetExposure(want_exposure));
-        exposure = want_exposure;
-        settled_us = std::max(settled_us, run.clock.NowUs());
-      }
-      while (true) {
-        ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
-        ROTOSCAN_ASSIGN_OR_RETURN(auto frame, run.camera.NextFrame(o.frame_timeout_us));
-        if (!frame) return TimeoutError("no frame from " + run.camera.Description() + " within " +
-                                        std::to_string(o.frame_timeout_us / 1000) + " ms");
-        run.Count(*frame);
-        // The whole exposure window (all rows) must lie after the last change; the next change is only
-        // issued after this frame has arrived, so the window also ends before it.
-        if (frame->exposure_start_us - uncertainty <= settled_us || frame->exposure_us != want_exposure) {
-          ++run.summary.frames_rejected;
-          continue;
-        }
-        ROTOSCAN_RETURN_IF_ERROR(run.Write(step, s, *frame, 0, frame->device_time_us.value_or(0)));
-        break;
-      }
+      continue;
+    }
+    ++run.summary.frames_rejected;
+    if (next && frame->exposure_start_us + uncertainty >= next->earliest_us) {
+      // The change came too early for shot i's frame (a wrong prediction): go back to shot i.
+      ROTOSCAN_ASSIGN_OR_RETURN(auto c, Apply(run, target.step, target.laser, &exposure));
+      if (c) settled = std::max(settled, c->latest_us);
+      next.reset();
     }
   }
   return run.camera.Stop();
 }
 
 // ---- hardware-triggered ----
-
-struct Shot {
-  int step;
-  LaserState laser;
-};
 
 // Runs the loaded program from `first_step` (or a one-step program) and writes the frames it can tie
 // to their trigger edges; returns the shots still missing.

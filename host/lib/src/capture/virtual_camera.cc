@@ -13,7 +13,8 @@
 //
 // Backend options: rolling=0|1, readout_ms (rolling readout, default 0.8 of the frame period),
 // drop=ID,ID (frame ids the camera loses: the id is used, no frame is delivered), extra=ID,ID (a frame
-// delivered twice under a new id, as a camera with a spurious trigger would), trigger_delay_us.
+// delivered twice under a new id, as a camera with a spurious trigger would), trigger_delay_us,
+// latency_ms (a frame is delivered this long after its last row's exposure ended: USB transfer).
 #include <algorithm>
 #include <cmath>
 #include <deque>
@@ -34,7 +35,7 @@ class VirtualCamera : public Camera {
  public:
   VirtualCamera(std::unique_ptr<sim::Renderer> renderer, std::shared_ptr<Clock> clock, RigTruth* truth,
                 bool rolling, double readout_fraction, int64_t readout_us, std::set<long long> drop,
-                std::set<long long> extra, int64_t trigger_delay_us)
+                std::set<long long> extra, int64_t trigger_delay_us, int64_t latency_us)
       : renderer_(std::move(renderer)),
         clock_(std::move(clock)),
         truth_(truth),
@@ -42,7 +43,8 @@ class VirtualCamera : public Camera {
         fixed_readout_us_(readout_us),
         drop_(std::move(drop)),
         extra_(std::move(extra)),
-        trigger_delay_us_(trigger_delay_us) {
+        trigger_delay_us_(trigger_delay_us),
+        latency_us_(latency_us) {
     const auto& scene = renderer_->scene();
     capabilities_.trigger_input = true;
     capabilities_.exposure_active_output = true;
@@ -153,7 +155,7 @@ class VirtualCamera : public Camera {
         const double period = 1e6 / settings_.frame_rate_hz;
         frame.exposure_start_us = first_start_us_ + std::llround(static_cast<double>(next_index_) * period);
         frame.exposure_us = frame.exposure_start_us >= exposure_change_us_ ? exposure_ : previous_exposure_;
-        if (frame.ExposureEndUs() > deadline) {
+        if (frame.ExposureEndUs() + latency_us_ > deadline) {
           clock_->WaitUntilUs(deadline);
           return std::optional<Frame>();
         }
@@ -161,7 +163,7 @@ class VirtualCamera : public Camera {
       }
       frame.frame_id = frame_id_++;
       frame.device_time_us = static_cast<uint64_t>(frame.exposure_start_us);
-      clock_->WaitUntilUs(frame.ExposureEndUs());
+      clock_->WaitUntilUs(frame.ExposureEndUs() + latency_us_);  // delivered after readout and transfer
       if (drop_.count(static_cast<long long>(frame.frame_id)) != 0) continue;  // lost by the camera
       frame.image = Render(frame);
       if (extra_.count(static_cast<long long>(frame.frame_id)) != 0) {
@@ -247,6 +249,7 @@ class VirtualCamera : public Camera {
   int64_t readout_us_ = 0;
   std::set<long long> drop_, extra_;
   int64_t trigger_delay_us_;
+  int64_t latency_us_;
   double natural_threshold_us_ = 0;
   bool started_ = false;
   int64_t exposure_ = 0, previous_exposure_ = 0, exposure_change_us_ = 0;
@@ -270,13 +273,14 @@ Result<std::unique_ptr<Camera>> OpenVirtualCamera(const std::string& argument, c
   ROTOSCAN_ASSIGN_OR_RETURN(const auto options,
                             internal::BackendOptions::Parse(context.options, "virtual",
                                                             {"rolling", "readout_ms", "drop", "extra",
-                                                             "trigger_delay_us"}));
+                                                             "trigger_delay_us", "latency_ms"}));
   ROTOSCAN_ASSIGN_OR_RETURN(const double rolling, options.Number("rolling", 0));
   ROTOSCAN_ASSIGN_OR_RETURN(const double readout_ms, options.Number("readout_ms", 0));
   ROTOSCAN_ASSIGN_OR_RETURN(const double delay, options.Number("trigger_delay_us", 10));
+  ROTOSCAN_ASSIGN_OR_RETURN(const double latency_ms, options.Number("latency_ms", 0));
   ROTOSCAN_ASSIGN_OR_RETURN(const auto drop, options.List("drop"));
   ROTOSCAN_ASSIGN_OR_RETURN(const auto extra, options.List("extra"));
-  if (readout_ms < 0 || delay < 0) return InvalidArgumentError("virtual: readout_ms and trigger_delay_us must be >= 0");
+  if (readout_ms < 0 || delay < 0 || latency_ms < 0) return InvalidArgumentError("virtual: readout_ms and trigger_delay_us must be >= 0");
   sim::Scene scene;
   if (context.scene_path.empty()) {
     ROTOSCAN_ASSIGN_OR_RETURN(scene, sim::SceneDefaults("machine_vision"));
@@ -292,7 +296,7 @@ Result<std::unique_ptr<Camera>> OpenVirtualCamera(const std::string& argument, c
   return std::unique_ptr<Camera>(std::make_unique<VirtualCamera>(
       std::move(renderer), context.clock, truth, rolling != 0, 0.8, std::llround(readout_ms * 1000),
       std::set<long long>(drop.begin(), drop.end()), std::set<long long>(extra.begin(), extra.end()),
-      std::llround(delay)));
+      std::llround(delay), std::llround(latency_ms * 1000)));
 }
 
 }  // namespace
