@@ -3,6 +3,7 @@
 //   rotoscan scan --device usb[:SERIAL]|sim|ciclop:/dev/ttyUSB0 --camera v4l2:/dev/video0|aravis[:ID]|virtual
 //                 --out BUNDLE [--calib calib.yaml] [--steps N] [--live [--cloud FILE]] [--timing ...] ...
 // rotoscan devices: the boards and cameras this build can open, and those it finds attached.
+#include <chrono>
 #include <condition_variable>
 #include <map>
 #include <memory>
@@ -208,10 +209,14 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
     });
   }
   auto summary = capture::RunScan(**board, **camera, *open.clock, o.out, options, context.progress);
+  const auto scan_end = std::chrono::steady_clock::now();
   if (live) {
     live->End();
     worker.join();
   }
+  // How far live processing lagged behind: wall time from the last frame to the cloud being ready.
+  const double lag_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - scan_end).count();
   if (!summary.ok()) return ReportStatus(context, "scan", summary.status());
   *context.out << "rotoscan scan: wrote " << o.out << "\n" << summary->Summary() << "\n";
   if (check_board) *context.out << "board found in " << views - views_without_target << " of " << views << " views\n";
@@ -220,7 +225,9 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
     const std::string cloud_path = o.cloud.empty() ? o.out + ".ply" : o.cloud;
     const Status written = cloud::WritePly(cloud_path, processed->cloud);
     if (!written.ok()) return ReportStatus(context, "scan", written);
-    *context.out << "live: " << pipeline::FormatSummary(processed->summary) << "\nwrote " << cloud_path << "\n";
+    *context.out << "live: " << pipeline::FormatSummary(processed->summary) << "\nlive: cloud ready " << lag_ms
+                 << " ms after the last frame (" << processed->summary.seconds << " s of processing)\nwrote "
+                 << cloud_path << "\n";
   }
   return kExitOk;
 }

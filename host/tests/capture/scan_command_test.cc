@@ -17,7 +17,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-int Run(std::vector<std::string> args, std::string* out_text = nullptr, std::string* err_text = nullptr) {
+int RunCli(std::vector<std::string> args, std::string* out_text = nullptr, std::string* err_text = nullptr) {
   args.insert(args.begin(), "rotoscan");
   args.push_back("--no-progress");
   std::vector<const char*> argv;
@@ -50,7 +50,7 @@ TEST_F(ScanCommandTest, SimBoardVirtualCameraLiveCloud) {
   std::string out, err;
   const std::string bundle = (dir_ / "scan").string();
   const std::string cloud = (dir_ / "cloud.ply").string();
-  ASSERT_EQ(Run({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene_, "--calib", calib_, "--out",
+  ASSERT_EQ(RunCli({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene_, "--calib", calib_, "--out",
                  bundle, "--steps", "8", "--live", "--cloud", cloud},
                 &out, &err),
             0)
@@ -65,19 +65,19 @@ TEST_F(ScanCommandTest, SimBoardVirtualCameraLiveCloud) {
 TEST_F(ScanCommandTest, BadInputIsAClearError) {
   std::string err;
   const std::string bundle = (dir_ / "b").string();
-  EXPECT_EQ(Run({"scan", "--device", "nosuch", "--out", bundle}, nullptr, &err), 1);
+  EXPECT_EQ(RunCli({"scan", "--device", "nosuch", "--out", bundle}, nullptr, &err), 1);
   EXPECT_NE(err.find("unknown board 'nosuch'"), std::string::npos) << err;
-  EXPECT_EQ(Run({"scan", "--live", "--out", bundle}, nullptr, &err), 1);
+  EXPECT_EQ(RunCli({"scan", "--live", "--out", bundle}, nullptr, &err), 1);
   EXPECT_NE(err.find("--live needs --calib"), std::string::npos) << err;
-  EXPECT_EQ(Run({"scan", "--timing", "sometimes", "--out", bundle}, nullptr, &err), 1);
-  EXPECT_EQ(Run({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene_, "--steps", "7",
+  EXPECT_EQ(RunCli({"scan", "--timing", "sometimes", "--out", bundle}, nullptr, &err), 1);
+  EXPECT_EQ(RunCli({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene_, "--steps", "7",
                  "--timing", "triggered", "--out", bundle},
                 nullptr, &err),
             1);
   EXPECT_NE(err.find("not a whole number of motor steps"), std::string::npos) << err;
   EXPECT_FALSE(fs::exists(bundle));
   std::string out;
-  EXPECT_EQ(Run({"devices"}, &out, &err), 0);
+  EXPECT_EQ(RunCli({"devices"}, &out, &err), 0);
   EXPECT_NE(out.find("sim"), std::string::npos) << out;
 }
 
