@@ -1,0 +1,67 @@
+// Scan timing in virtual time (DESIGN.md "Targets": a scan takes no longer than the camera's frame rate
+// allows). The sim board (the firmware core) and the virtual camera at 30 frames/s run a whole scan; the
+// figures are on the scan's virtual clock, so they do not depend on the machine:
+//   virtual_s / frames_s   the scan's duration over the time of the frames it used (frames_used / 30)
+//   captured / used        frames the camera delivered vs frames written
+// Targets: hardware-triggered <= 1.05x, free-running <= 1.5x, for a 1,200-step scan (4 frames per step).
+// Frames are rendered small (64x48): the renderer's speed is sim_bench's business.
+//   build/host/bench/capture/capture_bench                       (1,200 steps; ~1 min of wall time)
+//   build/host/bench/capture/capture_bench --benchmark_filter=/120   (a quicker look)
+#include <filesystem>
+#include <fstream>
+
+#include <unistd.h>
+
+#include <benchmark/benchmark.h>
+
+#include "rotoscan/capture/factory.h"
+#include "rotoscan/capture/scan.h"
+#include "rotoscan/sim/scene.h"
+
+namespace rotoscan::capture {
+namespace {
+
+namespace fs = std::filesystem;
+
+void BM_Scan(benchmark::State& state, Timing timing, bool rolling) {
+  const int steps = static_cast<int>(state.range(0));
+  const fs::path dir = fs::temp_directory_path() / ("rotoscan_capture_bench_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const fs::path scene_path = dir / "scene.json";
+  std::ofstream(scene_path) << R"({"camera": {"width": 64, "height": 48, "hfov_deg": 20},
+    "objects": [{"type": "sphere", "radius_mm": 30, "position_mm": [0, 0, 30]}]})";
+  for (auto _ : state) {
+    OpenContext context;
+    context.scene_path = scene_path.string();
+    if (rolling) context.options = {"rolling=1"};
+    auto board = OpenBoard("sim", &context).value();
+    context.board = board.get();
+    auto camera = OpenCamera("virtual", context).value();
+    ScanOptions o;
+    o.steps = steps;
+    o.step_deg = 0.3;
+    o.timing = timing;
+    o.header.created_by = "capture_bench";
+    o.header.camera.model = sim::LoadScene(scene_path).value().rig.camera;
+    fs::remove_all(dir / "b");
+    auto summary = RunScan(*board, *camera, *context.clock, dir / "b", o, nullptr);
+    if (!summary.ok()) {
+      state.SkipWithError(summary.status().ToString().c_str());
+      break;
+    }
+    const auto& s = summary.value();
+    state.counters["virtual_s"] = static_cast<double>(s.elapsed_us) / 1e6;
+    state.counters["frames_s"] = static_cast<double>(s.frames_time_us) / 1e6;
+    state.counters["ratio"] = static_cast<double>(s.elapsed_us) / static_cast<double>(s.frames_time_us);
+    state.counters["captured"] = s.frames_captured;
+    state.counters["used"] = s.frames_used;
+  }
+  fs::remove_all(dir);
+}
+
+BENCHMARK_CAPTURE(BM_Scan, triggered, Timing::kTriggered, false)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
+BENCHMARK_CAPTURE(BM_Scan, free_running_rolling, Timing::kFreeRunning, true)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
+BENCHMARK_CAPTURE(BM_Scan, free_running_global, Timing::kFreeRunning, false)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
+
+}  // namespace
+}  // namespace rotoscan::capture
