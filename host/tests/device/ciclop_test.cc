@@ -141,7 +141,7 @@ TEST_F(CiclopTest, MotorOnAndOff) {
 
 TEST_F(CiclopTest, MoveOkComesBeforeTheMoveEndsAndWaitIdleBoundsTheEnd) {
   Connect();
-  auto move = client_->MoveTo(30.0);  // 30 deg at 180 deg/s^2, 180 deg/s: 0.816 s
+  auto move = client_->MoveTo(20.0);  // 20 deg at 180 deg/s^2, 180 deg/s: 0.67 s
   ASSERT_TRUE(move.ok()) << move.status().ToString();
   ASSERT_TRUE(move->idle_us.has_value());
   const auto moves = fake_->moves();
@@ -152,14 +152,14 @@ TEST_F(CiclopTest, MoveOkComesBeforeTheMoveEndsAndWaitIdleBoundsTheEnd) {
   EXPECT_LT(move->ack.ok_us, moves[0].end_us - 500'000);
   // The first Idle report comes after the true end, and the table is at the target by then.
   EXPECT_GE(*move->idle_us, moves[0].end_us);
-  EXPECT_NEAR(fake_->TableAngleAt(*move->idle_us), 30.0, 0.5 * kStep);
+  EXPECT_NEAR(fake_->TableAngleAt(*move->idle_us), 20.0, 0.5 * kStep);
   // The predicted end is the true end within the ack window (the start is only known that well).
   EXPECT_NEAR(static_cast<double>(move->predicted_end_us), static_cast<double>(moves[0].end_us),
               static_cast<double>(move->ack.latency_us()) + 1000.0);
   // Half-way through, the table was between the two angles.
   const double mid = fake_->TableAngleAt((moves[0].start_us + moves[0].end_us) / 2);
-  EXPECT_NEAR(mid, 15.0, 0.5);
-  EXPECT_NEAR(client_->angle_deg(), 30.0, 1e-9);
+  EXPECT_NEAR(mid, 10.0, 0.5);
+  EXPECT_NEAR(client_->angle_deg(), 20.0, 1e-9);
 }
 
 TEST_F(CiclopTest, ErrorLineIsReportedWithTheBoardsMessage) {
@@ -204,17 +204,28 @@ TEST_F(CiclopTest, LostOkOfAMoveNeverSendsTheMoveTwice) {
 
 TEST_F(CiclopTest, GarbageIsSkipped) {
   Connect();
-  fake_->SendGarbage(std::string("\x80\xfe#%\r\nZ\x01q\r\n", 9));
+  fake_->SendGarbage(std::string("\x80\xfe#%\r\nZ\x01q\r\n", 11));
   auto on = client_->SetLaser(1, true);
   ASSERT_TRUE(on.ok()) << on.status().ToString();
   ExpectSwitchInside(1, true, *on);
   EXPECT_EQ(client_->garbage_lines(), 2);
+  EXPECT_EQ(client_->lost_oks(), 0);
+}
+
+TEST_F(CiclopTest, GarbageGluedToAnOkIsALostOkRecovered) {
+  Connect();
+  fake_->SendGarbage("\xffZq");  // no line end: the next "ok" arrives as "\xffZqok"
+  auto on = client_->SetLaser(1, true);
+  ASSERT_TRUE(on.ok()) << on.status().ToString();
+  ExpectSwitchInside(1, true, *on);
+  EXPECT_EQ(client_->garbage_lines(), 1);
+  EXPECT_EQ(client_->lost_oks(), 1);
 }
 
 TEST_F(CiclopTest, UnplugMidScanRestoresStateAndLosesNoStep) {
   Connect();
   ASSERT_TRUE(client_->SetMotor(true).ok());
-  const double step = 3.0;
+  const double step = 1.5;
   for (int k = 1; k <= 6; ++k) {
     auto move = client_->MoveTo(k * step);
     ASSERT_TRUE(move.ok()) << "step " << k << ": " << move.status().ToString();
@@ -246,9 +257,9 @@ TEST_F(CiclopTest, UnplugMidScanRestoresStateAndLosesNoStep) {
   EXPECT_EQ(fake_->moves().size(), 6u);
   EXPECT_NEAR(fake_->TableAngleAt(MonotonicNowUs()), 6 * step, 0.5 * kStep);
   EXPECT_NEAR(client_->angle_deg(), 6 * step, 1e-9);
-  // After the reboot the board counts from 0 at 9 deg: the client sent the 12 deg move as X3.
-  EXPECT_EQ(Count("G1X12"), 0);
-  EXPECT_EQ(Count("G1X3"), 2);  // step 1 before the unplug, step 4 after it
+  // After the reboot the board counts from 0 at 4.5 deg: the client sent the 6 deg move as X1.5.
+  EXPECT_EQ(Count("G1X6"), 0);
+  EXPECT_EQ(Count("G1X1.5"), 2);  // step 1 before the unplug, step 4 after it
 }
 
 TEST_F(CiclopTest, UnplugDuringAMoveLeavesTheAngleUnknownUntilSetAngle) {
@@ -313,13 +324,12 @@ TEST_F(CiclopTest, PlainGrblIsRefused) {
   EXPECT_NE(s.message().find("not running horus-fw"), std::string::npos) << s.message();
 }
 
-TEST_F(CiclopTest, BoardResetByItselfIsRecovered) {
+TEST_F(CiclopTest, ReplugAfterAMoveKeepsTheAngle) {
   Connect();
   ASSERT_TRUE(client_->MoveTo(5.0).ok());
-  // Another program (or a brown-out) resets the board: Ctrl-X on the wire.
   {
+    // The client holds the port's lock: a second program cannot open it meanwhile.
     auto other = SerialPort::Open(fake_options_.link_path);
-    // The client holds the lock: a second program cannot even open it.
     EXPECT_FALSE(other.ok());
   }
   fake_->Unplug();
@@ -327,6 +337,21 @@ TEST_F(CiclopTest, BoardResetByItselfIsRecovered) {
   auto move = client_->MoveTo(6.0);
   ASSERT_TRUE(move.ok()) << move.status().ToString();
   EXPECT_NEAR(fake_->TableAngleAt(*move->idle_us), 6.0, 0.5 * kStep);
+  EXPECT_EQ(client_->reconnections().size(), 1u);
+}
+
+TEST_F(CiclopTest, BoardResetByItselfIsRecovered) {
+  Connect();
+  ASSERT_TRUE(client_->MoveTo(5.0).ok());
+  fake_->Reboot();  // its banner is waiting when the client sends the next line
+  auto on = client_->SetLaser(1, true);
+  ASSERT_TRUE(on.ok()) << on.status().ToString();
+  EXPECT_EQ(client_->reconnections().size(), 1u);
+  EXPECT_TRUE(fake_->LaserAt(1, on->ok_us));
+  auto move = client_->MoveTo(6.0);
+  ASSERT_TRUE(move.ok()) << move.status().ToString();
+  EXPECT_NEAR(fake_->TableAngleAt(*move->idle_us), 6.0, 0.5 * kStep);
+  EXPECT_EQ(Count("G1X1"), 1);  // the board counts from 0 at 5 deg since its reset
 }
 
 TEST(CiclopOptions, Checked) {

@@ -395,6 +395,16 @@ void FakeCiclop::Replug() {
   Wake();
 }
 
+void FakeCiclop::Reboot() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Boot(NowUs(), /*hard=*/true);
+    agenda_.clear();
+    WriteNow("\r\n" + options_.banner + "\r\n");  // at once: the test goes on knowing it is there
+  }
+  Wake();
+}
+
 void FakeCiclop::SetSilent(bool silent) {
   std::lock_guard<std::mutex> lock(mutex_);
   silent_ = silent;

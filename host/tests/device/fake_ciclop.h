@@ -18,7 +18,7 @@
 //    board re-opened after a USB re-plug: an Arduino-type board is reset by DTR, so it boots with position
 //    0 where the table stands, lasers off, no feed rate, and prints its banner after `boot_us`.
 //
-// Faults: LoseOks(n) (the next n "ok" lines are never sent), SendGarbage(bytes), Unplug() (the pty is
+// Faults: Reboot() (the board resets by itself and prints its banner), LoseOks(n) (the next n "ok" lines are never sent), SendGarbage(bytes), Unplug() (the pty is
 // closed and the link removed: the client sees a hang-up) and Replug() (a new pty behind the same link, as
 // a re-plugged adapter comes back at the same /dev/serial/by-id/ name), SetSilent() (reads, never answers).
 //
@@ -86,6 +86,8 @@ class FakeCiclop {
   void Unplug();
   void Replug();
   void SetSilent(bool silent);
+  // The board resets by itself (a brown-out, a watchdog): position 0, lasers off, banner, same pty.
+  void Reboot();
 
   // Truth.
   std::vector<FakeLaserEvent> laser_events() const;

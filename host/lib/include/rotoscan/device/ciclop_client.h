@@ -150,6 +150,7 @@ class CiclopClient {
   int lost_oks() const { return lost_oks_; }
   double acceleration_deg_per_s2() const { return accel_; }
   double max_rate_deg_per_s() const { return max_rate_; }
+  double steps_per_deg() const { return steps_per_deg_; }
 
  private:
   enum class Kind { kIdempotent, kMove };
