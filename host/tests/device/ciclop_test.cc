@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 #include "fake_ciclop.h"
@@ -127,6 +128,9 @@ TEST_F(CiclopTest, LaserSwitchesHappenInsideTheirAckWindows) {
     EXPECT_FALSE(fake_->LaserAt(laser, off->ok_us));
   }
   const LatencyStats stats = client_->latency();
+  std::printf("ack windows over %d lines: min %lld, mean %lld, max %lld us\n", stats.count,
+              static_cast<long long>(stats.min_us), static_cast<long long>(stats.mean_us),
+              static_cast<long long>(stats.max_us));
   EXPECT_GE(stats.count, 4);
   EXPECT_GE(stats.min_us, fake_options_.reply_latency_min_us);  // the window cannot be shorter than the board's
 }

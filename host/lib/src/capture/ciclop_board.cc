@@ -13,10 +13,10 @@
 //
 // Lasers: horus-fw's laser 1 is the left one, laser 2 the right one (as bq Horus numbers them).
 #include <cmath>
-#include <cstdlib>
 #include <memory>
 #include <string>
 
+#include "backend_options.h"
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/core/logging.h"
 #include "rotoscan/device/ciclop_client.h"
@@ -127,23 +127,16 @@ class CiclopBoard final : public Board {
   BoardInfo info_;
 };
 
-Status ParseOptions(const std::vector<std::string>& options, device::CiclopOptions* out) {
-  for (const std::string& option : options) {
-    const auto eq = option.find('=');
-    if (eq == std::string::npos) continue;
-    const std::string key = option.substr(0, eq);
-    const std::string text = option.substr(eq + 1);
-    char* end = nullptr;
-    const double value = std::strtod(text.c_str(), &end);
-    const bool number = end != text.c_str() && *end == '\0' && std::isfinite(value) && value > 0;
-    if (key == "feed" || key == "ok_timeout_ms" || key == "reconnect_ms") {
-      if (!number) return InvalidArgumentError("ciclop: option " + key + " needs a positive number, got '" + text + "'");
-      if (key == "feed") out->feed_deg_per_s = value;
-      if (key == "ok_timeout_ms") out->ok_timeout_us = static_cast<int64_t>(value * 1000);
-      if (key == "reconnect_ms") out->reconnect_timeout_us = static_cast<int64_t>(value * 1000);
-    }
-  }
-  return out->Check();
+Status ParseOptions(const std::vector<std::string>& entries, device::CiclopOptions* out) {
+  ROTOSCAN_ASSIGN_OR_RETURN(const auto options, internal::BackendOptions::Parse(
+                                                    entries, "ciclop", {"feed", "ok_timeout_ms", "reconnect_ms"}));
+  ROTOSCAN_ASSIGN_OR_RETURN(out->feed_deg_per_s, options.Number("feed", out->feed_deg_per_s));
+  ROTOSCAN_ASSIGN_OR_RETURN(const double ok_ms, options.Number("ok_timeout_ms", out->ok_timeout_us / 1000.0));
+  ROTOSCAN_ASSIGN_OR_RETURN(const double reconnect_ms,
+                            options.Number("reconnect_ms", out->reconnect_timeout_us / 1000.0));
+  out->ok_timeout_us = static_cast<int64_t>(ok_ms * 1000);
+  out->reconnect_timeout_us = static_cast<int64_t>(reconnect_ms * 1000);
+  return out->Check().WithContext("ciclop options");
 }
 
 Result<std::unique_ptr<Board>> OpenCiclop(const std::string& argument, OpenContext* context) {
