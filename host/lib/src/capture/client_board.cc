@@ -1,5 +1,6 @@
 #include "client_board.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "rotoscan/core/logging.h"
@@ -18,7 +19,7 @@ Result<std::unique_ptr<ClientBoard>> ClientBoard::Create(std::unique_ptr<device:
   std::unique_ptr<ClientBoard> board(new ClientBoard(std::move(client), std::move(clock), std::move(info), options));
   device::Client& c = *board->client_;
   ROTOSCAN_RETURN_IF_ERROR(c.SetConfig(options.motion));
-  ROTOSCAN_ASSIGN_OR_RETURN(board->fit_, c.SyncClock(options.clock_pings));
+  ROTOSCAN_ASSIGN_OR_RETURN(board->fit_, c.SyncClock(options.clock_pings, options.clock_fit));
   ROTOSCAN_ASSIGN_OR_RETURN(const device::BoardStatus status, c.GetStatus());
   board->position_ = status.position;
   board->lasers_ = status.lasers;
@@ -125,7 +126,8 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
   while (true) {
     const int64_t left = deadline - clock_->NowUs();
     if (left < 0) return std::optional<TriggerEdge>();
-    ROTOSCAN_ASSIGN_OR_RETURN(auto event, client_->NextEvent(left));
+    // At least 1 us: the client reads the transport only when it has time to wait.
+    ROTOSCAN_ASSIGN_OR_RETURN(auto event, client_->NextEvent(std::max<int64_t>(left, 1)));
     if (!event) return std::optional<TriggerEdge>();
     if (const auto* trigger = std::get_if<device::TriggerEvent>(&*event)) {
       TriggerEdge edge;

@@ -17,6 +17,7 @@ struct ClientBoardOptions {
   int steps_per_rev = 19200;  // motor steps per table turn (microsteps and gearing included)
   device::MotionConfig motion;
   int clock_pings = 16;
+  device::ClockFitOptions clock_fit;
 };
 
 class ClientBoard : public Board {

@@ -270,6 +270,7 @@ Result<std::unique_ptr<Board>> OpenSimBoard(const std::string& argument, OpenCon
   board_options.motion.max_rate_hz = 40000;
   board_options.motion.accel_hz_per_s = 4'000'000;
   board_options.motion.trigger_pulse_us = 50;
+  board_options.clock_fit.fit_drift = false;  // one clock: the board's runs from the host's
   BoardInfo info;
   info.name = "simulated rotoscan board";
   info.serial = "sim";
