@@ -102,7 +102,10 @@ Status CiclopClient::Connect() {
   ROTOSCAN_RETURN_IF_ERROR(options_.Check());
   Close();
   ROTOSCAN_RETURN_IF_ERROR(OpenAndReset());
-  ROTOSCAN_RETURN_IF_ERROR(ReadSettings());
+  if (Status settings = ReadSettings(); !settings.ok()) {
+    port_.reset();
+    return settings;
+  }
   in_restore_ = true;
   Status status = [&]() -> Status {
     ROTOSCAN_ASSIGN_OR_RETURN(CiclopStatus st, QueryStatusOnce());
