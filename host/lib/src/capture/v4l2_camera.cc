@@ -391,8 +391,7 @@ struct V4l2Camera::Impl {
   // One decoded frame from a dequeued buffer; nullopt when the buffer is dropped (counted).
   std::optional<Frame> Decode(const v4l2_buffer& b) {
     if ((b.flags & V4L2_BUF_FLAG_ERROR) || b.bytesused == 0) {
-      ++counters.error_buffers;
-      ++counters.dropped;
+      ++counters.error_buffers;  // counted in `dropped` by the gap it leaves
       ROTOSCAN_LOG(kWarning) << Name() << ": frame " << b.sequence << " dropped (driver flagged an error)";
       return std::nullopt;
     }
@@ -404,8 +403,7 @@ struct V4l2Camera::Impl {
                                               settings.format);
     if (!image.ok()) {
       if (fourcc == V4L2_PIX_FMT_MJPEG) ++counters.corrupt_jpeg;
-      ++counters.error_buffers;
-      ++counters.dropped;
+      ++counters.error_buffers;  // counted in `dropped` by the gap it leaves
       ROTOSCAN_LOG(kWarning) << Name() << ": frame " << b.sequence << " dropped: " << image.status().message();
       return std::nullopt;
     }

@@ -81,7 +81,7 @@ class SequenceExtender {
 
 struct V4l2Counters {
   uint64_t frames = 0;         // frames handed to the caller
-  uint64_t dropped = 0;        // sequence gaps (frames the driver or camera dropped) and the frames below
+  uint64_t dropped = 0;        // frame ids missing between frames handed out (includes the ones below)
   uint64_t corrupt_jpeg = 0;   // MJPEG frames that did not decode
   uint64_t error_buffers = 0;  // V4L2_BUF_FLAG_ERROR or empty buffers
 };
