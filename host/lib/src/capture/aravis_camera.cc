@@ -89,6 +89,7 @@ struct AravisCamera::Impl {
   bool configured = false;
   bool streaming = false;
   int buffer_count = 8;
+  size_t payload = 0;  // bytes allocated per stream buffer
   std::string pixel_format;  // "Mono8", "BGR8", "RGB8", "BayerRG8", ...
   std::string trigger_source;
   std::string exposure_line;
@@ -149,8 +150,16 @@ struct AravisCamera::Impl {
 
   // Sets a value through an Aravis setter and checks the getter within a relative tolerance.
   Status SetFloat(const char* feature, double value, void (*set)(ArvCamera*, double, GError**),
-                  double (*get)(ArvCamera*, GError**)) {
+                  double (*get)(ArvCamera*, GError**), void (*bounds)(ArvCamera*, double*, double*, GError**)) {
     GError* error = nullptr;
+    double lo = 0.0, hi = 0.0;
+    bounds(camera, &lo, &hi, &error);
+    if (error != nullptr) return FeatureError(feature, "reading its bounds: " + Take(&error));
+    if (value < lo || value > hi) {
+      return {StatusCode::kInvalidArgument, Name() + ": feature " + feature + ": " + std::to_string(value) +
+                                                " is outside the camera's range [" + std::to_string(lo) + ", " +
+                                                std::to_string(hi) + "]"};
+    }
     set(camera, value, &error);
     if (error != nullptr) return FeatureError(feature, "setting " + std::to_string(value) + ": " + Take(&error));
     const double back = get(camera, &error);
@@ -189,6 +198,11 @@ struct AravisCamera::Impl {
     const bool mono = pf == ARV_PIXEL_FORMAT_MONO_8;
     const bool rgb = pf == ARV_PIXEL_FORMAT_RGB_8_PACKED || pf == ARV_PIXEL_FORMAT_BGR_8_PACKED;
     const size_t needed = static_cast<size_t>(w) * static_cast<size_t>(h) * (rgb ? 3 : 1);
+    // Aravis's fake camera with a fill pattern of the caller's own leaves the received size at 0 (only its
+    // built-in pattern sets it); the image is still in the buffer, whose allocation is `payload` bytes.
+    if (size == 0 && data != nullptr && arv_buffer_get_status(buffer) == ARV_BUFFER_STATUS_SUCCESS) {
+      size = std::min<size_t>(needed, payload);
+    }
     if (data == nullptr || w <= 0 || h <= 0 || size < needed) return std::nullopt;
     const cv::Mat raw(h, w, rgb ? CV_8UC3 : CV_8UC1, const_cast<uint8_t*>(data));
     const bool gray = settings.format == PixelFormat::kGray8;
@@ -256,7 +270,8 @@ Result<std::unique_ptr<AravisCamera>> AravisCamera::Open(const std::string& id, 
   }
   const char* device_id = arv_camera_get_device_id(impl->camera, &error);
   g_clear_error(&error);
-  impl->id = device_id != nullptr ? device_id : id;
+  // The id the user gave names the camera in messages; Aravis's own is used when none was given.
+  impl->id = !id.empty() ? id : (device_id != nullptr ? device_id : "?");
   const char* vendor = arv_camera_get_vendor_name(impl->camera, &error);
   g_clear_error(&error);
   const char* model = arv_camera_get_model_name(impl->camera, &error);
@@ -377,13 +392,14 @@ Result<CameraSettings> AravisCamera::Configure(const CameraSettings& requested) 
   if (m.Has("ExposureAuto")) ROTOSCAN_RETURN_IF_ERROR(m.SetString("ExposureAuto", "Off"));
   const char* exposure_name = m.Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";
   ROTOSCAN_RETURN_IF_ERROR(m.SetFloat(exposure_name, static_cast<double>(requested.exposure_us),
-                                      &arv_camera_set_exposure_time, &arv_camera_get_exposure_time));
+                                      &arv_camera_set_exposure_time, &arv_camera_get_exposure_time,
+                                      &arv_camera_get_exposure_time_bounds));
   got.exposure_us = std::llround(arv_camera_get_exposure_time(m.camera, &error));
   g_clear_error(&error);
   if (m.Has("GainAuto")) ROTOSCAN_RETURN_IF_ERROR(m.SetString("GainAuto", "Off"));
   if (m.caps.manual_gain) {
     ROTOSCAN_RETURN_IF_ERROR(m.SetFloat(m.Has("Gain") ? "Gain" : "GainRaw", requested.gain_db, &arv_camera_set_gain,
-                                        &arv_camera_get_gain));
+                                        &arv_camera_get_gain, &arv_camera_get_gain_bounds));
   } else if (requested.gain_db != 0.0) {
     return DeviceError(m.Name() + ": feature Gain: the camera does not have it");
   }
@@ -459,6 +475,7 @@ Status AravisCamera::Start() {
     m.DestroyStream();
     return DeviceError(m.Name() + ": reading the payload size: " + Take(&error));
   }
+  m.payload = payload;
   for (int i = 0; i < m.buffer_count; ++i) arv_stream_push_buffer(m.stream, arv_buffer_new(payload, nullptr));
   arv_camera_start_acquisition(m.camera, &error);
   if (error != nullptr) {
@@ -488,7 +505,7 @@ Status AravisCamera::SetExposure(int64_t exposure_us) {
   if (exposure_us <= 0) return InvalidArgumentError("exposure must be positive");
   ROTOSCAN_RETURN_IF_ERROR(m.SetFloat(m.Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs",
                                       static_cast<double>(exposure_us), &arv_camera_set_exposure_time,
-                                      &arv_camera_get_exposure_time));
+                                      &arv_camera_get_exposure_time, &arv_camera_get_exposure_time_bounds));
   m.previous_exposure_us = m.settings.exposure_us;
   m.settings.exposure_us = exposure_us;
   m.exposure_change_us = MonotonicNowUs();
