@@ -69,7 +69,7 @@ struct FakeUvcCamera::Impl {
   bool streaming = false;
   int64_t t0_us = 0;
   uint32_t next_sequence = 0;
-  bool drop_next = false, corrupt_next = false;
+  bool drop_next = false, corrupt_next = false, unplugged = false;
   std::vector<Sent> sent;
 
   uint32_t SizeImage() const {
@@ -147,6 +147,10 @@ struct FakeUvcCamera::Impl {
   gboolean Handle(UMockdevIoctlClient* client) {
     const unsigned long request = umockdev_ioctl_client_get_request(client);
     std::lock_guard<std::mutex> lock(mutex);
+    if (unplugged) {
+      Complete(client, -1, ENODEV);
+      return TRUE;
+    }
     switch (request) {
       case VIDIOC_QUERYCAP: {
         UMockdevIoctlData* d = Arg<v4l2_capability>(client);
@@ -518,6 +522,11 @@ void FakeUvcCamera::DropNextFrame() {
 void FakeUvcCamera::CorruptNextFrame() {
   std::lock_guard<std::mutex> lock(impl_->mutex);
   impl_->corrupt_next = true;
+}
+
+void FakeUvcCamera::Unplug() {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->unplugged = true;
 }
 
 std::vector<FakeUvcCamera::Sent> FakeUvcCamera::sent() const {

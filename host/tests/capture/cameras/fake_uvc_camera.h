@@ -48,6 +48,7 @@ class FakeUvcCamera {
 
   void DropNextFrame();     // skip a sequence number (the frame never reaches the host)
   void CorruptNextFrame();  // the next MJPEG frame truncated to a third of its bytes
+  void Unplug();            // every ioctl fails with ENODEV from now on, as uvcvideo's after a disconnect
 
   // The frames the fake sent, in order.
   struct Sent {

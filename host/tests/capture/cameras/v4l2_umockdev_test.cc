@@ -163,6 +163,21 @@ TEST_F(V4l2Umockdev, DroppedFrameAndCorruptJpegAreGaps) {
   EXPECT_LT(cv::mean(diff)[0], 3.0);
 }
 
+TEST_F(V4l2Umockdev, UnplugMidStreamIsADeviceError) {
+  FakeUvcCamera fake(FakeUvcCamera::Options{});
+  auto camera = Open({});
+  ASSERT_NE(camera, nullptr);
+  ASSERT_TRUE(camera->Configure(Small(PixelFormat::kBgr8)).ok());
+  ASSERT_TRUE(camera->Start().ok());
+  ASSERT_EQ(Read(camera.get(), 2).size(), 2u);
+  fake.Unplug();
+  auto f = camera->NextFrame(1'000'000);
+  ASSERT_FALSE(f.ok());
+  EXPECT_EQ(f.status().code(), StatusCode::kDeviceError);
+  EXPECT_THAT(f.status().message(), HasSubstr("unplugged"));
+  EXPECT_FALSE(camera->Stop().ok());  // STREAMOFF fails too; the camera is closed cleanly anyway
+}
+
 TEST_F(V4l2Umockdev, ControlNotHeldIsAnErrorNamingIt) {
   FakeUvcCamera::Options options;
   options.ignored_control = V4L2_CID_WHITE_BALANCE_TEMPERATURE;
