@@ -320,9 +320,18 @@ Result<CameraSettings> AravisCamera::Configure(const CameraSettings& requested) 
   if (requested.triggered && !m.caps.trigger_input) {
     return InvalidArgumentError(m.Name() + " has no TriggerMode/TriggerSource: it cannot be triggered");
   }
+  // A cycle of different exposures per trigger needs the camera's sequencer (SequencerMode, GenICam SFNC),
+  // which this backend does not drive yet: one exposure for every frame only.
+  for (const int64_t e : requested.exposure_cycle_us) {
+    if (e != requested.exposure_cycle_us.front()) {
+      return InvalidArgumentError(m.Name() + ": a cycle of exposures per trigger needs the camera's sequencer, "
+                                             "which the aravis backend does not drive yet");
+    }
+  }
   m.configured = false;
   GError* error = nullptr;
   CameraSettings got = requested;
+  if (!requested.exposure_cycle_us.empty()) got.exposure_us = requested.exposure_cycle_us.front();
 
   // Trigger off while configuring (some cameras refuse size changes or frame rates while triggered).
   if (m.Has("TriggerSelector")) {
@@ -391,7 +400,7 @@ Result<CameraSettings> AravisCamera::Configure(const CameraSettings& requested) 
   // Exposure and gain: manual, then set and read back.
   if (m.Has("ExposureAuto")) ROTOSCAN_RETURN_IF_ERROR(m.SetString("ExposureAuto", "Off"));
   const char* exposure_name = m.Has("ExposureTime") ? "ExposureTime" : "ExposureTimeAbs";
-  ROTOSCAN_RETURN_IF_ERROR(m.SetFloat(exposure_name, static_cast<double>(requested.exposure_us),
+  ROTOSCAN_RETURN_IF_ERROR(m.SetFloat(exposure_name, static_cast<double>(got.exposure_us),
                                       &arv_camera_set_exposure_time, &arv_camera_get_exposure_time,
                                       &arv_camera_get_exposure_time_bounds));
   got.exposure_us = std::llround(arv_camera_get_exposure_time(m.camera, &error));

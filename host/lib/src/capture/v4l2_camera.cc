@@ -512,6 +512,9 @@ Result<CameraSettings> V4l2Camera::Configure(const CameraSettings& requested) {
   if (requested.triggered) {
     return InvalidArgumentError(m.Name() + ": UVC webcams have no trigger input (use free-running timing)");
   }
+  if (!requested.exposure_cycle_us.empty()) {
+    return InvalidArgumentError(m.Name() + ": exposure cycles need a trigger input (UVC webcams have none)");
+  }
   if (requested.white_balance) {
     return InvalidArgumentError(m.Name() + ": white balance as RGB gains is not a UVC control; use the option "
                                            "wb_temperature=K (auto white balance is always turned off)");

@@ -24,6 +24,8 @@
 
 namespace rotoscan::capture {
 
+class RigTruth;  // virtual_rig.h
+
 inline constexpr uint8_t kLaserLeft = device::kLaserLeft;
 inline constexpr uint8_t kLaserRight = device::kLaserRight;
 
@@ -94,6 +96,9 @@ class Board {
   virtual Result<std::optional<uint32_t>> ResumeProgram();
   // Lost trigger events seen so far (gaps in the board's counter).
   virtual int lost_events() const { return 0; }
+
+  // The simulated rig's truth (sim board only; null for real boards): what a virtual camera renders.
+  virtual RigTruth* truth() { return nullptr; }
 };
 
 }  // namespace rotoscan::capture

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <opencv2/core/mat.hpp>
 
@@ -56,6 +57,9 @@ struct CameraSettings {
   // automatic: a backend turns auto white balance off).
   std::optional<std::array<double, 3>> white_balance;
   bool triggered = false;  // expose on the trigger input instead of free-running (needs trigger_input)
+  // Triggered: the exposures successive triggers use in turn from Start() (a GenICam sequencer, so a scan
+  // program can alternate short laser shots and a long natural one); empty: exposure_us for every frame.
+  std::vector<int64_t> exposure_cycle_us;
   Status Check() const;
 };
 

@@ -1,0 +1,69 @@
+// A Board over the device client (device/client.h): what the `usb` and `sim` backends share. Times of
+// changes: a laser switch takes effect on the board when SET_LASERS arrives, so between the command's
+// send time and its acknowledgement; a move from its send time to its MOVE_DONE event's device time
+// through the clock fit (plus the fit's error); trigger edges at their device time through the fit.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "rotoscan/capture/board.h"
+#include "rotoscan/capture/clock.h"
+#include "rotoscan/device/client.h"
+
+namespace rotoscan::capture::internal {
+
+struct ClientBoardOptions {
+  int steps_per_rev = 19200;  // motor steps per table turn (microsteps and gearing included)
+  device::MotionConfig motion;
+  int clock_pings = 16;
+};
+
+class ClientBoard : public Board {
+ public:
+  // `client` is connected; its transport's NowUs() is `clock`'s time.
+  static Result<std::unique_ptr<ClientBoard>> Create(std::unique_ptr<device::Client> client,
+                                                     std::shared_ptr<Clock> clock, BoardInfo info,
+                                                     const ClientBoardOptions& options);
+  ~ClientBoard() override;
+
+  const BoardCapabilities& capabilities() const override { return capabilities_; }
+  const BoardInfo& info() const override { return info_; }
+  std::string Description() const override;
+  Status EnableMotor(bool enable) override;
+  Result<BoardChange> MoveTo(double angle_rad) override;
+  Result<BoardChange> MoveBy(double delta_rad) override;
+  Result<BoardChange> SetLasers(uint8_t mask) override;
+  double table_angle_rad() const override;
+  uint8_t lasers() const override { return lasers_; }
+  Status Shutdown() override;
+  Status LoadProgram(const device::ScanProgram& program) override;
+  Status StartProgram(uint32_t first_step) override;
+  Status AbortProgram() override;
+  Result<std::optional<TriggerEdge>> NextTrigger(int64_t timeout_us, bool* program_done) override;
+  Result<std::optional<uint32_t>> ResumeProgram() override;
+  int lost_events() const override { return client_->stats().lost_events; }
+
+  device::Client& client() { return *client_; }
+  double radians_per_step() const { return radians_per_step_; }
+
+ private:
+  ClientBoard(std::unique_ptr<device::Client> client, std::shared_ptr<Clock> clock, BoardInfo info,
+              const ClientBoardOptions& options);
+  int64_t HostFromDevice(uint64_t device_us) const;
+
+  std::unique_ptr<device::Client> client_;
+  std::shared_ptr<Clock> clock_;
+  BoardInfo info_;
+  ClientBoardOptions options_;
+  BoardCapabilities capabilities_;
+  device::ClockFit fit_;
+  double radians_per_step_ = 0.0;
+  int32_t position_ = 0;  // motor steps from where the board was opened
+  int32_t program_origin_ = 0;
+  int32_t program_steps_per_move_ = 0;
+  uint8_t lasers_ = 0;
+  bool program_running_ = false;
+};
+
+}  // namespace rotoscan::capture::internal

@@ -1,0 +1,73 @@
+// Backend `usb`: our STM32F411 board over libusb (device::Client, device/transport.h), on the real
+// CLOCK_MONOTONIC clock. `usb` opens the first board; `usb:SERIAL` the one whose unique id (GET_INFO)
+// is SERIAL, or `usb:BUS-ADDRESS` ("1-7") the one at that bus and address. An unplug is handled by the
+// client (re-open and carry on) and a program stopped meanwhile is resumed (client_board.cc).
+#include <cstdio>
+
+#include "backend_options.h"
+#include "client_board.h"
+#include "rotoscan/capture/factory.h"
+#include "rotoscan/device/transport.h"
+
+namespace rotoscan::capture {
+namespace {
+
+Result<std::unique_ptr<Board>> OpenUsbBoard(const std::string& argument, OpenContext* context) {
+  ROTOSCAN_ASSIGN_OR_RETURN(const auto options,
+                            internal::BackendOptions::Parse(context->options, "usb", {"steps_per_rev"}));
+  ROTOSCAN_ASSIGN_OR_RETURN(const double steps_per_rev, options.Number("steps_per_rev", 19200));
+  if (!(steps_per_rev >= 1 && steps_per_rev <= 1e7)) return InvalidArgumentError("usb: steps_per_rev out of range");
+  if (!context->clock) context->clock = MakeRealClock();
+  if (context->clock->is_virtual()) return InvalidArgumentError("the usb board runs on the real clock, not a virtual one");
+
+  ROTOSCAN_ASSIGN_OR_RETURN(const auto boards, device::ListUsbBoards());
+  if (boards.empty()) return NotFoundError("no Rotoscan board on USB (is it plugged in? udev rules?)");
+  std::vector<device::UsbBoard> candidates;
+  int bus = 0, address = 0;
+  char dash = 0;
+  const bool by_address = std::sscanf(argument.c_str(), "%d%c%d", &bus, &dash, &address) == 3 && dash == '-';
+  for (const auto& b : boards) {
+    if (!by_address || (b.bus == bus && b.address == address)) candidates.push_back(b);
+  }
+  for (const auto& b : candidates) {
+    device::LibusbTransportOptions transport_options;
+    transport_options.bus = b.bus;
+    transport_options.address = b.address;
+    ROTOSCAN_ASSIGN_OR_RETURN(auto transport, device::MakeLibusbTransport(transport_options));
+    auto client = device::Client::Connect(std::move(transport));
+    if (!client.ok()) {
+      if (candidates.size() == 1) return client.status();
+      continue;
+    }
+    if (!argument.empty() && !by_address && client.value()->info().uid != argument) continue;
+    BoardInfo info;
+    info.name = "rotoscan board";
+    info.serial = client.value()->info().uid;
+    info.firmware_version = client.value()->info().firmware_version;
+    internal::ClientBoardOptions board_options;
+    board_options.steps_per_rev = static_cast<int>(steps_per_rev);
+    ROTOSCAN_ASSIGN_OR_RETURN(auto board, internal::ClientBoard::Create(std::move(client).value(), context->clock,
+                                                                        info, board_options));
+    return std::unique_ptr<Board>(std::move(board));
+  }
+  return NotFoundError("no Rotoscan board matches 'usb:" + argument + "'");
+}
+
+Result<std::vector<DeviceListing>> ListUsb() {
+  ROTOSCAN_ASSIGN_OR_RETURN(const auto boards, device::ListUsbBoards());
+  std::vector<DeviceListing> out;
+  for (const auto& b : boards) {
+    out.push_back({"usb:" + std::to_string(b.bus) + "-" + std::to_string(b.address),
+                   "rotoscan board, bus " + std::to_string(b.bus) + " address " + std::to_string(b.address) +
+                       (b.port_path.empty() ? "" : " port " + b.port_path)});
+  }
+  return out;
+}
+
+}  // namespace
+
+void RegisterCaptureBackend_usb(BackendRegistry* registry) {
+  registry->AddBoard({"usb", "our STM32F411 board over USB (libusb)", OpenUsbBoard, ListUsb});
+}
+
+}  // namespace rotoscan::capture
