@@ -412,9 +412,12 @@ struct V4l2Camera::Impl {
     f.frame_id = sequence.Extend(b.sequence);
     if (last_id && f.frame_id > *last_id + 1) counters.dropped += f.frame_id - *last_id - 1;
     last_id = f.frame_id;
-    const V4l2Timestamp kind = DecodeTimestampFlags(b.flags);
+    V4l2Timestamp kind = DecodeTimestampFlags(b.flags);
     int64_t stamp_us = static_cast<int64_t>(b.timestamp.tv_sec) * 1'000'000 + b.timestamp.tv_usec;
-    if (!kind.monotonic) stamp_us = MonotonicNowUs();  // COPY/UNKNOWN: only the dequeue time is known
+    if (!kind.monotonic) {  // COPY/UNKNOWN clock: only the dequeue time is known, after the frame's end
+      stamp_us = MonotonicNowUs();
+      kind.start_of_exposure = false;
+    }
     f.readout_us = caps.readout_us;
     f.exposure_us = settings.exposure_us;
     f.exposure_start_us = ExposureStartFromStamp(stamp_us, kind, f.exposure_us, f.readout_us);
