@@ -143,6 +143,29 @@ void fw_log(uint8_t level, const char* text) {
   (void)fw_send_event(&msg);
 }
 
+PROTO_STATIC_ASSERT(FW_REPORT_INFO == PROTO_LOG_INFO && FW_REPORT_WARNING == PROTO_LOG_WARNING &&
+                        FW_REPORT_ERROR == PROTO_LOG_ERROR,
+                    "fw_report levels are LOG levels");
+
+static size_t append_hex(char* out, size_t at, size_t cap, uint32_t v) {
+  static const char digits[] = "0123456789abcdef";
+  const char head[3] = {' ', '0', 'x'};
+  for (size_t i = 0; i < 3u && at < cap; ++i) out[at++] = head[i];
+  for (int shift = 28; shift >= 0 && at < cap; shift -= 4) out[at++] = digits[(v >> (uint32_t)shift) & 0xFu];
+  return at;
+}
+
+void fw_report(uint8_t level, const char* text, uint32_t a, uint32_t b) {
+  char line[PROTO_MAX_LOG_TEXT + 1];
+  size_t n = strlen(text);
+  if (n > PROTO_MAX_LOG_TEXT) n = PROTO_MAX_LOG_TEXT;
+  memcpy(line, text, n);
+  n = append_hex(line, n, PROTO_MAX_LOG_TEXT, a);
+  n = append_hex(line, n, PROTO_MAX_LOG_TEXT, b);
+  line[n] = '\0';
+  fw_log(level, line);
+}
+
 /* ---- moves ---- */
 
 static void queue_move_done(uint8_t status) {

@@ -35,6 +35,14 @@ void fw_isr_trigger(uint32_t at);
 /* Exposure-line capture interrupt: the line went to `level` at counter value `at`. Context: isr. */
 void fw_isr_exposure(uint32_t at, bool level);
 
+/* Queues a LOG event from the port: `text` followed by " 0x" and the two values in hexadecimal (cut to the
+ * LOG's length). For what only the port knows, e.g. the fault recorded before a reset. Context: main, after
+ * fw_init. */
+#define FW_REPORT_INFO 1u    /* PROTO_LOG_INFO */
+#define FW_REPORT_WARNING 2u /* PROTO_LOG_WARNING */
+#define FW_REPORT_ERROR 3u   /* PROTO_LOG_ERROR */
+void fw_report(uint8_t level, const char* text, uint32_t a, uint32_t b);
+
 /* USB OUT (or UART RX) data arrived: queues up to `len` bytes and returns how many it took (the rest must
  * be offered again later: flow control). Context: isr or main. */
 size_t fw_usb_rx(const uint8_t* data, size_t len);

@@ -202,6 +202,6 @@ F4_ASSERT(DWT_CYCCNT == DWT_CTRL + 4u, "ARMv7-M C1.8.7");
 #define IRQ_TIM3 29u
 #define IRQ_USART1 37u
 #define IRQ_OTG_FS 67u
-#define F4_IRQ_COUNT 86u /* positions 0..85 (the FPU interrupt is the last, 81; 82-85 are SPI5 and reserved) */
+#define F4_IRQ_COUNT 86u /* positions 0..85: the last is SPI5 (RM0383 table 37) */
 
 #endif /* ROTOSCAN_FIRMWARE_STM32F411_REGS_H_ */
