@@ -14,9 +14,7 @@
 extern "C" {
 #endif
 
-#define FW_VERSION_MAJOR 0
-#define FW_VERSION_MINOR 1
-#define FW_VERSION_PATCH 0
+#include "version.h" /* FW_VERSION_MAJOR, _MINOR, _PATCH */
 
 /* Power-on: resets every module, device time 0 = now, queues a STATUS event with cause BOOT. Context: main.
  */

@@ -5,10 +5,12 @@
  *   fastest step rate allowed (SET_CONFIG max_rate_hz)      100 kHz = one interrupt per 10 us = 960 cycles
  *   DESIGN.md's ceiling for the step interrupt                5 us = 480 cycles (50 % of the CPU at 100 kHz)
  *   exception entry + exit (Cortex-M4, FPU lazy stacking on)  12 + 12 cycles (plus flash wait states)
- *   TIM3_IRQHandler: clear UIF, DWT reads, reload ARR         ~20 instructions
- *   fw_isr_step -> step_isr: pop one interval from the SPSC queue, position += dir, hal_step_pulse (two CCMR
- *   writes and a CCR write: the pulse's falling edge is TIM3's compare, no second interrupt)  ~50 instructions
- *   expected total                                            ~100-150 cycles, i.e. < 1.6 us, ~30 % of budget
+ *   the path's instructions in the -Os image (arm-none-eabi-objdump, 2026-11-23): TIM3_IRQHandler 30,
+ *   step_timer_load 16, step_isr 27 (+1 for fw_isr_step), ring_pop 8 + ring_peek 17 + newlib's memcpy for
+ *   the 4-byte interval (~20 of its 100 run), hal_step_pulse 13 (two CCMR writes and a CCR write: the
+ *   pulse's falling edge is TIM3's compare, no second interrupt)          ~130 instructions
+ *   expected total, at about one cycle per instruction from the flash cache   ~160 cycles = 1.7 us, 1/3 of
+ *   the budget (the generic memcpy in ring_peek is the first thing to cut if it ever matters)
  * Measured on the chip with the DWT cycle counter around the handler's body, every time it runs:
  * port_step_isr_cycles_last / _max, reported after boot in the LOG line "step isr N cycles max" and by
  * `rotoscan device info` (see README). No floating point, no division, no loop in the interrupt: all the
