@@ -19,22 +19,21 @@ extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
 int main(void);
 
 void Reset_Handler(void);
-void Default_Handler(void);
 void HardFault_Handler(void);
 void fault_handler(const uint32_t* frame, uint32_t vector);
 
-void NMI_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void MemManage_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void BusFault_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void UsageFault_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void SVC_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void DebugMon_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void PendSV_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void SysTick_Handler(void) __attribute__((weak, alias("Default_Handler")));
-void TIM2_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
-void TIM3_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
-void USART1_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
-void OTG_FS_IRQHandler(void) __attribute__((weak, alias("Default_Handler")));
+void NMI_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void MemManage_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void BusFault_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void UsageFault_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void SVC_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void DebugMon_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void PendSV_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void SysTick_Handler(void) __attribute__((weak, alias("HardFault_Handler")));
+void TIM2_IRQHandler(void) __attribute__((weak, alias("HardFault_Handler")));
+void TIM3_IRQHandler(void) __attribute__((weak, alias("HardFault_Handler")));
+void USART1_IRQHandler(void) __attribute__((weak, alias("HardFault_Handler")));
+void OTG_FS_IRQHandler(void) __attribute__((weak, alias("HardFault_Handler")));
 
 typedef void (*vector_t)(void);
 #define VECTORS (16u + F4_IRQ_COUNT)
@@ -73,12 +72,9 @@ void Reset_Handler(void) {
   }
 }
 
-/* Unused positions of the table are 0 (a fault if taken); a handler-less interrupt lands here. */
-void Default_Handler(void) {
-  HardFault_Handler();
-}
-
-/* Finds the exception frame (main or process stack, EXC_RETURN bit 2) and hands it to fault_handler. */
+/* Also every handler the port does not define (weak aliases above): LR still holds EXC_RETURN, IPSR says which
+ * vector it was. Finds the exception frame (main or process stack, EXC_RETURN bit 2) and hands it to
+ * fault_handler. Unused positions of the table are 0: taking one is itself a fault. */
 __attribute__((naked)) void HardFault_Handler(void) {
   __asm__ volatile(
       "tst lr, #4\n\t"
