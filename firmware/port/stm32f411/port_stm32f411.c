@@ -12,9 +12,9 @@
  *   expected total, at about one cycle per instruction from the flash cache   ~160 cycles = 1.7 us, 1/3 of
  *   the budget (the generic memcpy in ring_peek is the first thing to cut if it ever matters)
  * Measured on the chip with the DWT cycle counter around the handler's body, every time it runs:
- * port_step_isr_cycles_last / _max, reported after boot in the LOG line "step isr N cycles max" and by
- * `rotoscan device info` (see README). No floating point, no division, no loop in the interrupt: all the
- * profile arithmetic runs in the main loop (core/stepper.c).
+ * port_step_isr_cycles_last / _max (g_port.isr_cycles_*, readable with a debugger). Not yet reported over the
+ * protocol: that needs a backward-compatible GET_STATUS extension (open). No floating point, no division, no
+ * loop in the interrupt: all the profile arithmetic runs in the main loop (core/stepper.c).
  *
  * Interrupt priorities (lower = more urgent): TIM3 step 0, TIM2 trigger / laser / exposure 1, USB and UART 2.
  * The core's queues are single-producer single-consumer between one interrupt and the main loop.
