@@ -2,12 +2,14 @@
 
 #include <string.h>
 
-#include "fw.h"
-#include "fw_internal.h"
 #include "hal.h"
 #include "link.h"
+#include "motion.h"
 #include "sequencer.h"
+#include "state.h"
+#include "status.h"
 #include "timebase.h"
+#include "version.h"
 
 /* The largest answer is a STATUS reply. */
 #define DISP_ANSWER_MAX (PROTO_COBS_MAX_ENCODED(PROTO_HEADER_SIZE + PROTO_STATUS_SIZE + PROTO_CRC_SIZE) + 1)
@@ -201,7 +203,7 @@ static void handle_frame(const uint8_t* stuffed, size_t len) {
   proto_msg_t reply;
   bool abort_after = false;
   execute(&cmd, &reply, &abort_after);
-  fw_clear_safety(); /* after the answer, so that a GET_STATUS still reports the trip */
+  fw_set_safety_tripped(false); /* after the answer, so that a GET_STATUS still reports the trip */
   answer_t* slot = &g_disp.cache[g_disp.next_slot++ % DISP_DUP_WINDOW];
   const int w = proto_encode_frame(&reply, slot->wire, sizeof(slot->wire));
   if (w <= 0) { /* unreachable: every answer fits */

@@ -14,9 +14,7 @@
 extern "C" {
 #endif
 
-#define FW_VERSION_MAJOR 0
-#define FW_VERSION_MINOR 1
-#define FW_VERSION_PATCH 0
+#include "version.h" /* FW_VERSION_MAJOR, _MINOR, _PATCH */
 
 /* Power-on: resets every module, device time 0 = now, queues a STATUS event with cause BOOT. Context: main.
  */
@@ -34,6 +32,14 @@ uint32_t fw_isr_step(void);
 void fw_isr_trigger(uint32_t at);
 /* Exposure-line capture interrupt: the line went to `level` at counter value `at`. Context: isr. */
 void fw_isr_exposure(uint32_t at, bool level);
+
+/* Queues a LOG event from the port: `text` followed by " 0x" and the two values in hexadecimal (cut to the
+ * LOG's length). For what only the port knows, e.g. the fault recorded before a reset. Context: main, after
+ * fw_init. */
+#define FW_REPORT_INFO 1u    /* PROTO_LOG_INFO */
+#define FW_REPORT_WARNING 2u /* PROTO_LOG_WARNING */
+#define FW_REPORT_ERROR 3u   /* PROTO_LOG_ERROR */
+void fw_report(uint8_t level, const char* text, uint32_t a, uint32_t b);
 
 /* USB OUT (or UART RX) data arrived: queues up to `len` bytes and returns how many it took (the rest must
  * be offered again later: flow control). Context: isr or main. */

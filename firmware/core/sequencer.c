@@ -15,9 +15,10 @@
  */
 #include "sequencer.h"
 
-#include "fw_internal.h"
 #include "hal.h"
+#include "motion.h"
 #include "ring.h"
+#include "state.h"
 #include "timebase.h"
 
 enum seq_state { SEQ_IDLE = 0, SEQ_MOVING, SEQ_SETTLING, SEQ_ARMING, SEQ_EXPOSING };
@@ -57,6 +58,7 @@ static struct {
   uint8_t idle_lasers;
   uint32_t trigger_count;
   bool exposure_input;
+  uint8_t status_due; /* a STATUS cause for the caller of seq_poll to send, or SEQ_NO_STATUS */
 } g_seq;
 
 void seq_init(void) {
@@ -70,6 +72,7 @@ void seq_init(void) {
   g_seq.idle_lasers = 0;
   g_seq.trigger_count = 0;
   g_seq.exposure_input = hal_exposure_capture_enable() == 0;
+  g_seq.status_due = SEQ_NO_STATUS;
 }
 
 /* ---- validation ---- */
@@ -253,7 +256,7 @@ static void arm_shot(uint64_t now) {
 static void finish_program(void) {
   g_seq.state = SEQ_IDLE;
   hal_lasers_set(0);
-  (void)fw_send_status(PROTO_CAUSE_PROGRAM_DONE, 0);
+  g_seq.status_due = PROTO_CAUSE_PROGRAM_DONE;
 }
 
 static void send_trigger_event(void) {
@@ -301,7 +304,8 @@ void seq_move_done(void) {
   g_seq.state = SEQ_SETTLING;
 }
 
-void seq_poll(void) {
+uint8_t seq_poll(void) {
+  g_seq.status_due = SEQ_NO_STATUS;
   drain_isr_queue();
   const uint64_t now = tb_now();
   switch (g_seq.state) {
@@ -320,11 +324,12 @@ void seq_poll(void) {
       } else if (now >= g_seq.deadline + SEQ_TRIGGER_LOST_US) {
         fw_log(PROTO_LOG_ERROR, "trigger edge lost; program stopped");
         (void)seq_abort();
-        (void)fw_send_status(PROTO_CAUSE_ABORTED, 0);
+        g_seq.status_due = PROTO_CAUSE_ABORTED;
       }
       break;
     default: break;
   }
+  return g_seq.status_due;
 }
 
 uint64_t seq_next_wakeup(void) {

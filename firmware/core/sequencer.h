@@ -39,9 +39,12 @@ bool seq_abort(void);
 void seq_set_idle_lasers(uint8_t mask);
 uint8_t seq_idle_lasers(void);
 
-/* Runs the state machine. Context: main. */
-void seq_poll(void);
-/* Called by fw when a program move ends. Context: main. */
+/* Runs the state machine. Returns the cause of a STATUS event the caller must send (PROTO_CAUSE_PROGRAM_DONE
+ * when a program ended, PROTO_CAUSE_ABORTED when a lost trigger edge stopped it), or SEQ_NO_STATUS: the
+ * sequencer sits below the STATUS layer (state.h). Context: main. */
+#define SEQ_NO_STATUS 0xFFu
+uint8_t seq_poll(void);
+/* Called by fw when a program move ends (motion_poll). Context: main. */
 void seq_move_done(void);
 /* Device time the sequencer next needs the main loop (UINT64_MAX if none). */
 uint64_t seq_next_wakeup(void);

@@ -6,8 +6,10 @@
 #include <cstring>
 #include <random>
 #include <set>
+#include <string>
 #include <vector>
 
+#include "fw.h"
 #include "rotoscan_protocol.h"
 #include "sim_device.h"
 #include "sim_port.h"
@@ -579,6 +581,31 @@ TEST(FirmwareDispatch, BootSendsAStatusEvent) {
   EXPECT_EQ(m.type, PROTO_STATUS);
   EXPECT_EQ(m.body.status.cause, PROTO_CAUSE_BOOT);
   EXPECT_EQ(m.body.status.status_seq, 0u);
+}
+
+}  // namespace
+}  // namespace rotoscan::firmware_test
+
+namespace rotoscan::firmware_test {
+namespace {
+
+// fw_report: what a port has to say after boot (the STM32F411 port: a fault recorded before the reset) as a
+// LOG event, the two values in hexadecimal, cut to the LOG's 64 characters.
+TEST(FirmwareReport, PortMessagesBecomeLogEventsWithHexValues) {
+  SimDevice dev;
+  fw_report(FW_REPORT_ERROR, "fault before reset: vector, pc", 3u, 0x080012A4u);
+  const std::string long_text = "a message long enough that the two values no longer fit in the LOG line";
+  ASSERT_GT(long_text.size(), size_t{PROTO_MAX_LOG_TEXT});
+  fw_report(FW_REPORT_WARNING, long_text.c_str(), 1u, 2u);
+  dev.Drain();
+  const std::vector<proto_msg_t> logs = dev.EventsOfType(PROTO_LOG);
+  ASSERT_EQ(logs.size(), 2u);
+  EXPECT_EQ(logs[0].body.log.level, PROTO_LOG_ERROR);
+  EXPECT_EQ(std::string(logs[0].body.log.text, logs[0].body.log.length),
+            "fault before reset: vector, pc 0x00000003 0x080012a4");
+  EXPECT_EQ(logs[1].body.log.level, PROTO_LOG_WARNING);
+  EXPECT_EQ(logs[1].body.log.length, PROTO_MAX_LOG_TEXT);
+  EXPECT_EQ(std::string(logs[1].body.log.text, logs[1].body.log.length), long_text.substr(0, PROTO_MAX_LOG_TEXT));
 }
 
 }  // namespace

@@ -1,15 +1,28 @@
-// rotoscan device: bench work with the scanner board (list, info, ping, move, laser).
+// rotoscan device: bench work with the scanner board (list, info, ping, move, laser, flash).
 #include "device.h"
 
+#include <spawn.h>
+#include <sys/wait.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <chrono>
 #include <cmath>
+#include <cstring>
+#include <fstream>
 #include <iomanip>
+#include <iterator>
 #include <memory>
 #include <ostream>
+#include <sstream>
+#include <thread>
 #include <vector>
 
 #include "rotoscan/device/client.h"
 #include "rotoscan/device/transport.h"
+#include "rotoscan/device/usb_ids.h"
+
+extern char** environ;
 
 namespace rotoscan::cli {
 
@@ -141,8 +154,108 @@ int RunDeviceLaser(const Context& context, const DeviceOptions& options, const s
   return kExitOk;
 }
 
+namespace {
+
+constexpr size_t kMaxImageBytes = 32 * 1024;  // DESIGN.md's flash budget (sectors 0-1)
+
+uint32_t Word(const std::string& b, size_t at) {
+  return uint32_t(uint8_t(b[at])) | uint32_t(uint8_t(b[at + 1])) << 8 | uint32_t(uint8_t(b[at + 2])) << 16 |
+         uint32_t(uint8_t(b[at + 3])) << 24;
+}
+
+// Runs argv[0] (PATH lookup) and waits for it; its exit status, or an error when it could not be started.
+Result<int> RunProgram(const std::vector<std::string>& args) {
+  std::vector<char*> argv;
+  for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  const int rc = posix_spawnp(&pid, argv[0], nullptr, nullptr, argv.data(), environ);
+  if (rc != 0) {
+    return NotFoundError(args[0] + ": " + std::strerror(rc) +
+                         (rc == ENOENT ? " (install it: apt-get install dfu-util)" : ""));
+  }
+  int status = 0;
+  while (waitpid(pid, &status, 0) < 0) {
+    if (errno != EINTR) return InternalError(std::string("waitpid: ") + std::strerror(errno));
+  }
+  if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
+  return WEXITSTATUS(status);
+}
+
+}  // namespace
+
+Result<std::string> FirmwareImageVersion(const std::string& image) {
+  std::ifstream in(image, std::ios::binary);
+  if (!in) return NotFoundError("cannot read " + image);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (bytes.size() < 8 || bytes.size() > kMaxImageBytes) {
+    return InvalidArgumentError(image + ": " + std::to_string(bytes.size()) +
+                                " bytes, not a firmware image (8 B to 32 KB; flash the .bin, not the .elf)");
+  }
+  // The vector table: initial stack pointer in the F411's RAM, reset handler in its flash (Thumb bit set).
+  const uint32_t sp = Word(bytes, 0);
+  const uint32_t reset = Word(bytes, 4);
+  if (sp < 0x20000000u || sp > 0x20020000u || reset < 0x08000000u || reset >= 0x08080000u || !(reset & 1u)) {
+    return InvalidArgumentError(image + ": does not start with an STM32F411 vector table (flash the .bin, not "
+                                "the .elf)");
+  }
+  // The USB device descriptor: 18 bytes, bcdUSB 2.00, bMaxPacketSize0 64, then our VID and PID.
+  const uint8_t head[] = {18, 1, 0x00, 0x02, 0, 0, 0, 64, uint8_t(device::kUsbVendorId & 0xFF),
+                          uint8_t(device::kUsbVendorId >> 8), uint8_t(device::kUsbProductId & 0xFF),
+                          uint8_t(device::kUsbProductId >> 8)};
+  const std::string needle(reinterpret_cast<const char*>(head), sizeof(head));
+  const size_t at = bytes.find(needle);
+  if (at == std::string::npos || at + 18 > bytes.size()) {
+    return InvalidArgumentError(image + ": no Rotoscan USB device descriptor in it (another board's firmware?)");
+  }
+  const unsigned bcd = uint8_t(bytes[at + 12]) | uint8_t(bytes[at + 13]) << 8;
+  return std::to_string(bcd >> 8) + "." + std::to_string((bcd >> 4) & 0xF) + "." + std::to_string(bcd & 0xF);
+}
+
+int RunDeviceFlash(const Context& context, const DeviceOptions& options, const std::string& file,
+                   const FlashOptions& flash) {
+  const char* what = "device flash";
+  if (!(flash.wait_s > 0)) return ReportStatus(context, what, InvalidArgumentError("--wait must be > 0 s"));
+  Result<std::string> version = FirmwareImageVersion(file);
+  if (!version.ok()) return ReportStatus(context, what, version.status());
+  *context.out << "flashing " << file << " (firmware " << *version << ") through the DFU bootloader 0483:df11\n";
+  Result<int> rc = RunProgram({flash.dfu_util, "-a", "0", "-d", "0483:df11", "-s", "0x08000000:leave", "-D", file});
+  if (!rc.ok()) return ReportStatus(context, what, rc.status());
+  if (*rc != 0) {
+    return ReportStatus(context, what,
+                        DeviceError(flash.dfu_util + " failed (exit " + std::to_string(*rc) +
+                                         "): is the board in its bootloader? Hold BOOT0, press and release "
+                                         "NRST, release BOOT0; `dfu-util -l` should list 0483:df11"));
+  }
+  // The bootloader jumps to the new image (:leave); the board enumerates again as a Rotoscan board.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(flash.wait_s);
+  Result<std::unique_ptr<device::Client>> client = DeviceError("not tried");
+  for (;;) {
+    Result<std::vector<device::UsbBoard>> boards = device::ListUsbBoards();
+    if (boards.ok() && !boards->empty()) {
+      client = ConnectBoard(options);
+      if (client.ok()) break;
+    }
+    if (std::chrono::steady_clock::now() >= deadline) {
+      return ReportStatus(context, what,
+                          TimeoutError("flashed, but the board did not come back on USB within " +
+                                           std::to_string(flash.wait_s) + " s" +
+                                           (client.ok() ? std::string() : ": " + client.status().message())));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  const std::string running = (*client)->info().firmware_version;
+  if (running != *version) {
+    return ReportStatus(context, what,
+                        DeviceError("the board runs firmware " + running + " but the image is " + *version +
+                                      ": the flash did not take"));
+  }
+  *context.out << "board back: firmware " << running << ", serial " << (*client)->info().uid << "\n";
+  return kExitOk;
+}
+
 void RegisterDevice(CLI::App& app, const Context& context, int* exit_code) {
-  CLI::App* sub = app.add_subcommand("device", "Talk to the scanner board: list, info, ping, move, laser");
+  CLI::App* sub = app.add_subcommand("device", "Talk to the scanner board: list, info, ping, move, laser, flash");
   sub->require_subcommand(1);
   static DeviceOptions options;
   static int count = 20;
@@ -175,6 +288,15 @@ void RegisterDevice(CLI::App& app, const Context& context, int* exit_code) {
   add_common(laser);
   laser->add_option("which", which, "left, right, both or off")->required();
   laser->callback([&context, exit_code] { *exit_code = RunDeviceLaser(context, options, which); });
+  static std::string image;
+  static FlashOptions flash;
+  CLI::App* flash_cmd = sub->add_subcommand(
+      "flash", "Flash rotoscan-fw.bin through the STM32 DFU bootloader (BOOT0 high at reset), check the version");
+  add_common(flash_cmd);
+  flash_cmd->add_option("file", image, "firmware image (.bin), e.g. build-fw/rotoscan-fw.bin")->required();
+  flash_cmd->add_option("--dfu-util", flash.dfu_util, "the dfu-util program to run");
+  flash_cmd->add_option("--wait", flash.wait_s, "seconds to wait for the board to come back");
+  flash_cmd->callback([&context, exit_code] { *exit_code = RunDeviceFlash(context, options, image, flash); });
 }
 
 }  // namespace rotoscan::cli

@@ -1,6 +1,15 @@
-/* Shared between the core's modules (not for ports). */
-#ifndef ROTOSCAN_FIRMWARE_FW_INTERNAL_H_
-#define ROTOSCAN_FIRMWARE_FW_INTERNAL_H_
+/*
+ * state.h -- the core's shared state and outgoing events (state_ layer, below everything that acts):
+ * configuration, motor enable, the event stream (frame counter, LOG lines, drop count), receive errors, and
+ * when the host was last heard. It calls only the link, the timebase and the port.
+ *
+ * The core's modules call each other one way only, each using only those listed before it:
+ *     ring, timebase, link, stepper  <-  state  <-  motion  <-  sequencer  <-  status  <-  dispatch  <-  fw
+ * (the test firmware.core_layers checks the includes). A lower module that has news for an upper one
+ * returns it (motion_poll, seq_poll) instead of calling up.
+ */
+#ifndef ROTOSCAN_FIRMWARE_STATE_H_
+#define ROTOSCAN_FIRMWARE_STATE_H_
 
 #include <stdbool.h>
 #include <stdint.h>
@@ -19,6 +28,9 @@ extern "C" {
 #define FW_DEFAULT_TRIGGER_PULSE_US 100u
 #define FW_DEFAULT_LASER_TIMEOUT_MS 2000u
 
+/* Power-on state: default configuration, motor disabled, counters zero, host seen now. */
+void state_init(void);
+
 const proto_config_t* fw_config(void);
 step_profile_cfg_t fw_profile(void);
 /* Replaces the configuration; the caller has validated it. */
@@ -32,24 +44,15 @@ void fw_set_motor_enabled(bool enabled);
 bool fw_send_event(proto_msg_t* msg);
 /* Room in the transmit queue for one more event of any type. */
 bool fw_event_room(void);
-/* Queues a STATUS frame. cause REPLY uses `reply_seq` as its header seq and is not an event. */
-bool fw_send_status(uint8_t cause, uint16_t reply_seq);
-/* Fills a STATUS payload (status_seq is assigned when it is sent). */
-void fw_fill_status(proto_status_t* status, uint8_t cause);
+uint32_t fw_events_dropped(void);
 /* Queues a LOG event. */
 void fw_log(uint8_t level, const char* text);
 
-/* Moves: the sequencer's program moves and MOVE commands share the stepper. */
-enum fw_move_owner { FW_MOVE_NONE = 0, FW_MOVE_COMMAND, FW_MOVE_PROGRAM };
-bool fw_start_move(int32_t steps, enum fw_move_owner owner);
-enum fw_move_owner fw_move_owner(void);
-/* Stops a running move (ABORT, safety); a command move reports MOVE_DONE with PROTO_MOVE_ABORTED. */
-void fw_stop_move(void);
-
 /* The last valid frame from the host restarts the laser safety timeout. */
 void fw_host_seen(void);
+uint64_t fw_host_seen_at(void);
 bool fw_safety_tripped(void);
-void fw_clear_safety(void);
+void fw_set_safety_tripped(bool tripped);
 
 uint32_t fw_rx_errors(void);
 void fw_count_rx_error(void);
@@ -58,4 +61,4 @@ void fw_count_rx_error(void);
 }
 #endif
 
-#endif /* ROTOSCAN_FIRMWARE_FW_INTERNAL_H_ */
+#endif /* ROTOSCAN_FIRMWARE_STATE_H_ */
