@@ -480,6 +480,14 @@ int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) 
   out << "  reprojection RMS " << s.rms_px << " px; laser plane residual left " << s.laser_rms_mm[0]
       << " right " << s.laser_rms_mm[1] << " mm; axis fit " << s.axis_fit_rms_mm << " mm; table angle scale "
       << s.angle_scale << "\n";
+  if (std::isfinite(s.point_std_mm)) {
+    out << "  predicted error of a scanned point at " << std::setprecision(0) << s.working_distance_mm
+        << std::setprecision(4) << " mm: +-" << s.point_std_mm << " mm (up to +-" << s.point_std_max_mm
+        << ")";
+    if (s.table_angles_refined) out << "; table angles refined, largest slip " << s.max_table_slip_deg << " deg";
+    out << "\n";
+  }
+  for (const auto& note : s.notes) out << "  note: " << note << "\n";
   const calib::RigCalibrationSummary three_step = calib::Evaluate(*data, *initial, calibration_options);
   out << "  (three-step before refinement: RMS " << three_step.rms_px << " px, laser "
       << three_step.laser_rms_mm[0] << " / " << three_step.laser_rms_mm[1] << " mm)\n";

@@ -17,6 +17,7 @@ struct ProcessCommandOptions {
   bool no_merge = false;
   std::string lasers = "both";
   double min_quality = 0.0;
+  std::string dark_frame;
 };
 
 int RunProcess(const ProcessCommandOptions& o, const Context& context) {
@@ -40,6 +41,11 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
     options.use_laser[0] = false;
   } else if (o.lasers != "both") {
     return fail(InvalidArgumentError("--lasers must be left, right or both"));
+  }
+  if (!o.dark_frame.empty()) {
+    auto dark = laser::ReadImage8(o.dark_frame);
+    if (!dark.ok()) return fail(dark.status().WithContext("--dark-frame"));
+    options.dark_frame = *dark;
   }
   std::filesystem::path calib = o.calib;
   if (calib.empty()) {
@@ -85,6 +91,9 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--min-quality", o.min_quality, "drop points of lower quality (0..1)")
       ->capture_default_str();
   sub->add_flag("--no-merge", o.no_merge, "keep both lasers' points where they overlap");
+  sub->add_option("--dark-frame", o.dark_frame,
+                  "8-bit image with the lasers off: the background of steps without a laser-off frame "
+                  "(default: zero, when the scan has no laser-off frame at all)");
   sub->callback([&context, exit_code] { *exit_code = RunProcess(o, context); });
 }
 

@@ -8,6 +8,8 @@
 #include "calib/cost_functions/axis_gauge.h"
 #include "calib/cost_functions/corner_reprojection.h"
 #include "calib/cost_functions/laser_on_target.h"
+#include "calib/cost_functions/scanned_point.h"
+#include "calib/cost_functions/table_angle_prior.h"
 #include "calib/cost_functions/table_model.h"
 #include "rotoscan/geometry/camera.h"
 
@@ -55,15 +57,17 @@ const std::vector<double> kPose = {0.1, -0.3, 0.05, -40.0, 20.0, 310.0};
 const std::vector<double> kAxisDirection = {0.02, -0.97, -0.25};
 const std::vector<double> kAxisPoint = {5.0, 60.0, 320.0};
 const std::vector<double> kAngleScale = {1.003};
+const std::vector<double> kAngleOffset = {-0.012};  // the table slipped 0.7 degree
 
 TEST(CostFunctionsTest, CornerReprojectionDerivatives) {
   const Eigen::Vector3d corner(24.0, 36.0, 0.0);
   const Eigen::Vector2d pixel(500.0, 420.0);
   std::unique_ptr<ceres::CostFunction> automatic(CornerReprojectionCost::Create(corner, pixel, 0.105, 0.1));
-  ceres::NumericDiffCostFunction<CornerReprojectionCost, ceres::RIDDERS, 2, 4, 5, 6, 3, 3, 1> numeric(
+  ceres::NumericDiffCostFunction<CornerReprojectionCost, ceres::RIDDERS, 2, 4, 5, 6, 3, 3, 1, 1> numeric(
       new CornerReprojectionCost(corner, pixel, 0.105, 0.1));
-  ExpectSameDerivatives(*automatic, numeric,
-                        {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale}, 1e-6);
+  ExpectSameDerivatives(
+      *automatic, numeric,
+      {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale, kAngleOffset}, 1e-6);
 }
 
 TEST(CostFunctionsTest, LaserOnTargetDerivatives) {
@@ -71,11 +75,12 @@ TEST(CostFunctionsTest, LaserOnTargetDerivatives) {
   const std::vector<double> normal = {0.9, 0.05, 0.4};
   const std::vector<double> offset = {-80.0};
   std::unique_ptr<ceres::CostFunction> automatic(LaserOnTargetCost::Create(pixel, 0.07, 0.05));
-  ceres::NumericDiffCostFunction<LaserOnTargetCost, ceres::RIDDERS, 1, 4, 5, 6, 3, 3, 1, 3, 1> numeric(
+  ceres::NumericDiffCostFunction<LaserOnTargetCost, ceres::RIDDERS, 1, 4, 5, 6, 3, 3, 1, 1, 3, 1> numeric(
       new LaserOnTargetCost(pixel, 0.07, 0.05));
-  ExpectSameDerivatives(
-      *automatic, numeric,
-      {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale, normal, offset}, 1e-6);
+  ExpectSameDerivatives(*automatic, numeric,
+                        {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale,
+                         kAngleOffset, normal, offset},
+                        1e-6);
 }
 
 // The same on a target plane that does not pass through the target origin (a face of the paper's object).
@@ -85,11 +90,12 @@ TEST(CostFunctionsTest, LaserOnObjectFaceDerivatives) {
   const std::vector<double> normal = {0.9, 0.05, 0.4};
   const std::vector<double> offset = {-80.0};
   std::unique_ptr<ceres::CostFunction> automatic(LaserOnTargetCost::Create(pixel, -0.2, 0.05, face));
-  ceres::NumericDiffCostFunction<LaserOnTargetCost, ceres::RIDDERS, 1, 4, 5, 6, 3, 3, 1, 3, 1> numeric(
+  ceres::NumericDiffCostFunction<LaserOnTargetCost, ceres::RIDDERS, 1, 4, 5, 6, 3, 3, 1, 1, 3, 1> numeric(
       new LaserOnTargetCost(pixel, -0.2, 0.05, face));
-  ExpectSameDerivatives(
-      *automatic, numeric,
-      {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale, normal, offset}, 1e-6);
+  ExpectSameDerivatives(*automatic, numeric,
+                        {kIntrinsics, kDistortion, kPose, kAxisDirection, kAxisPoint, kAngleScale,
+                         kAngleOffset, normal, offset},
+                        1e-6);
 }
 
 TEST(CostFunctionsTest, AxisGaugeDerivatives) {
@@ -98,6 +104,51 @@ TEST(CostFunctionsTest, AxisGaugeDerivatives) {
   ceres::NumericDiffCostFunction<AxisGaugeCost, ceres::RIDDERS, 1, 3> numeric(
       new AxisGaugeCost(Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(0, -1, 0.2), 1.0));
   ExpectSameDerivatives(*automatic, numeric, {kAxisPoint}, 1e-8);
+}
+
+TEST(CostFunctionsTest, TableAnglePriorDerivatives) {
+  std::unique_ptr<ceres::CostFunction> automatic(TableAnglePriorCost::Create(0.0087));
+  ceres::NumericDiffCostFunction<TableAnglePriorCost, ceres::RIDDERS, 1, 1> numeric(
+      new TableAnglePriorCost(0.0087));
+  ExpectSameDerivatives(*automatic, numeric, {kAngleOffset}, 1e-8);
+  // The residual is the offset in sigmas.
+  const double* parameters[] = {kAngleOffset.data()};
+  double residual = 0.0;
+  ASSERT_TRUE(automatic->Evaluate(parameters, &residual, nullptr));
+  EXPECT_NEAR(residual, -0.012 / 0.0087, 1e-12);
+}
+
+TEST(CostFunctionsTest, ScannedPointDerivatives) {
+  const std::vector<double> normal = {0.9, 0.05, 0.4};
+  const std::vector<double> offset = {-80.0};
+  std::unique_ptr<ceres::CostFunction> automatic(ScannedPoint::Create(Eigen::Vector2d(700.0, 300.0), 2.1));
+  ceres::NumericDiffCostFunction<ScannedPoint, ceres::RIDDERS, 3, 4, 5, 3, 1, 3, 3> numeric(
+      new ScannedPoint(Eigen::Vector2d(700.0, 300.0), 2.1));
+  ExpectSameDerivatives(*automatic, numeric,
+                        {kIntrinsics, kDistortion, normal, offset, kAxisDirection, kAxisPoint}, 1e-6);
+}
+
+// A pixel of a point on the laser plane triangulates back onto that point (eq. 6), and turning the table
+// back (eq. 7) puts it where the same table point was at angle 0.
+TEST(CostFunctionsTest, ScannedPointIsTheTriangulatedPointTurnedBack) {
+  const Eigen::Vector3d normal = Eigen::Vector3d(0.9, 0.05, 0.4).normalized();
+  const double offset = -80.0;
+  Eigen::Vector3d on_plane(10.0, -20.0, 0.0);
+  on_plane.z() = (-offset - normal.x() * on_plane.x() - normal.y() * on_plane.y()) / normal.z();
+  double pixel[2];
+  geometry::ProjectToPixel(kIntrinsics.data(), kDistortion.data(), on_plane.data(), pixel);
+  const Eigen::Vector3d a =
+      Eigen::Vector3d(kAxisDirection[0], kAxisDirection[1], kAxisDirection[2]).normalized();
+  const Eigen::Vector3d c(kAxisPoint[0], kAxisPoint[1], kAxisPoint[2]);
+  const double angle = 0.8;
+  const Eigen::Vector3d expected = c + Eigen::AngleAxisd(-angle, a) * (on_plane - c);
+  const ScannedPoint functor(Eigen::Vector2d(pixel[0], pixel[1]), angle);
+  double out[3];
+  ASSERT_TRUE(functor(kIntrinsics.data(), kDistortion.data(), normal.data(), &offset, kAxisDirection.data(),
+                      kAxisPoint.data(), out));
+  EXPECT_NEAR(out[0], expected.x(), 1e-9);
+  EXPECT_NEAR(out[1], expected.y(), 1e-9);
+  EXPECT_NEAR(out[2], expected.z(), 1e-9);
 }
 
 TEST(CostFunctionsTest, UndistortInvertsTheCameraModel) {
@@ -117,15 +168,22 @@ TEST(CostFunctionsTest, TableModelTurnsAboutTheAxis) {
   const double direction[3] = {0, -1, 0};
   const double axis_point[3] = {0, 50, 300};
   const double angle_scale[1] = {0.5};
+  const double no_offset[1] = {0.0};
   const double on_axis[3] = {0, 10, 300};
   double out[3];
-  TargetPointInCam(pose, direction, axis_point, angle_scale, M_PI, on_axis, out);
+  TargetPointInCam(pose, direction, axis_point, angle_scale, no_offset, M_PI, on_axis, out);
   EXPECT_NEAR(out[0], 0, 1e-12);
   EXPECT_NEAR(out[1], 10, 1e-12);
   EXPECT_NEAR(out[2], 300, 1e-12);
   const double off_axis[3] = {30, 50, 300};
-  TargetPointInCam(pose, direction, axis_point, angle_scale, M_PI, off_axis, out);
+  TargetPointInCam(pose, direction, axis_point, angle_scale, no_offset, M_PI, off_axis, out);
   // Right-handed about -y: +x goes to +z.
+  EXPECT_NEAR(out[0], 0, 1e-12);
+  EXPECT_NEAR(out[2], 330, 1e-12);
+  // An offset adds to the modelled angle: a commanded 0 with an offset of a quarter turn is the same.
+  const double zero_scale[1] = {0.0};
+  const double quarter[1] = {M_PI / 2};
+  TargetPointInCam(pose, direction, axis_point, zero_scale, quarter, 1.0, off_axis, out);
   EXPECT_NEAR(out[0], 0, 1e-12);
   EXPECT_NEAR(out[2], 330, 1e-12);
 }

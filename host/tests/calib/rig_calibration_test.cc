@@ -39,7 +39,14 @@ struct Synthetic {
   std::vector<double> origin_height_mm;  // per placement: the target origin's height above the table top
 };
 
-Synthetic MakeSynthetic(bool distortion, double noise_px, unsigned seed, int steps_each_side = 3) {
+// With slip_deg > 0 the table stands off its (scaled) commanded angle at every step by up to slip_deg
+// (a fixed pattern per placement and step), as a table that slips; the views keep the commanded angle.
+double SlipRad(double slip_deg, int placement, int step) {
+  return DegToRad(slip_deg * std::sin(1.7 * step + 2.3 * placement + 0.4));
+}
+
+Synthetic MakeSynthetic(bool distortion, double noise_px, unsigned seed, int steps_each_side = 3,
+                        double slip_deg = 0.0) {
   Synthetic s;
   geometry::Rig& rig = s.truth.rig;
   rig.camera.width = 1280;
@@ -105,7 +112,7 @@ Synthetic MakeSynthetic(bool distortion, double noise_px, unsigned seed, int ste
     for (int step = -steps_each_side; step <= steps_each_side; ++step) {
       const Eigen::Isometry3d cam_from_target =
           geometry::RotationAboutAxis(rig.axis_point_in_cam, rig.axis_direction_in_cam,
-                                      step * rig.step_angle_rad) *
+                                      step * rig.step_angle_rad + SlipRad(slip_deg, p, step)) *
           s.truth.cam_from_target0[p];
       TargetView view;
       view.placement = p;
@@ -266,12 +273,99 @@ TEST(RigCalibrationTest, ReportNamesABadViewAndTheRobustLossKeepsTheRig) {
   ASSERT_TRUE(initial.ok());
   const auto refined = RefineRig(s.data, *initial, {});
   ASSERT_TRUE(refined.ok());
-  EXPECT_FALSE(refined->summary.passed);
-  ASSERT_FALSE(refined->summary.failures.empty());
+  // Pixel figures are information (issue 15): the view is named in the notes; whether the rig passes is
+  // the covariance's call, scaled by the residuals.
   bool named = false;
-  for (const auto& f : refined->summary.failures) named = named || f.find("view p0_s-2") != std::string::npos;
-  EXPECT_TRUE(named) << refined->summary.failures[0];
+  for (const auto& n : refined->summary.notes) named = named || n.find("view p0_s-2") != std::string::npos;
+  EXPECT_TRUE(named) << (refined->summary.notes.empty() ? "no notes" : refined->summary.notes[0]);
+  for (const auto& f : refined->summary.failures) EXPECT_EQ(f.find("view p0_s-2"), std::string::npos) << f;
   EXPECT_NEAR(refined->estimate.rig.camera.fx, s.truth.rig.camera.fx, 0.003 * s.truth.rig.camera.fx);
+}
+
+// Issue 15: a table that slips (up to 0.7 degree, as a real sweep that stepped 2.9 or 4.05 degrees for a
+// commanded 3.6). With each view's angle refined the slips are recovered, the rig meets the targets and
+// the report passes; with the commanded angles as truths (the old behaviour) the slips stay in the
+// residuals, the rig is worse and the report, judging the predicted error of a scanned point, fails.
+TEST(RigCalibrationTest, RefinedTableAnglesRecoverASlippingTable) {
+  constexpr double kSlipDeg = 0.7;
+  constexpr int kEachSide = 9;
+  const Synthetic s = MakeSynthetic(true, 0.05, 7, kEachSide, kSlipDeg);
+  const auto initial = CalibrateThreeStep(s.data, {});
+  ASSERT_TRUE(initial.ok()) << initial.status().ToString();
+  const auto refined = RefineRig(s.data, *initial, {});
+  ASSERT_TRUE(refined.ok()) << refined.status().ToString();
+  RigCalibrationOptions fixed_options;
+  fixed_options.refine_table_angles = false;
+  const auto fixed = RefineRig(s.data, *initial, fixed_options);
+  ASSERT_TRUE(fixed.ok()) << fixed.status().ToString();
+  const geometry::Rig& truth = s.truth.rig;
+  const RigCalibrationSummary& r = refined->summary;
+  const RigCalibrationSummary& f = fixed->summary;
+  std::printf(
+      "slipping table (synthetic): refined: %.3f px, point +-%.4f mm, axis %.4f mm; fixed: %.3f px, "
+      "point +-%.4f mm, axis %.4f mm\n",
+      r.rms_px, r.point_std_mm, AxisDistanceMm(refined->estimate.rig, truth), f.rms_px, f.point_std_mm,
+      AxisDistanceMm(fixed->estimate.rig, truth));
+  // Each refined angle against the true one, relative to its placement's mean (the placement's pose at
+  // angle 0 takes up the mean of its slips).
+  double worst = 0.0;
+  for (int p = 0; p < 3; ++p) {
+    double est_mean = 0.0, true_mean = 0.0;
+    int n = 0;
+    for (int step = -kEachSide; step <= kEachSide; ++step, ++n) {
+      est_mean += refined->estimate.TableAngle(p, step, step * s.data.nominal_step_rad);
+      true_mean += step * truth.step_angle_rad + SlipRad(kSlipDeg, p, step);
+    }
+    for (int step = -kEachSide; step <= kEachSide; ++step) {
+      const double est = refined->estimate.TableAngle(p, step, step * s.data.nominal_step_rad) - est_mean / n;
+      const double tru = step * truth.step_angle_rad + SlipRad(kSlipDeg, p, step) - true_mean / n;
+      worst = std::max(worst, RadToDeg(std::abs(est - tru)));
+    }
+  }
+  EXPECT_LT(worst, 0.02);  // measured 0.011 degree (a board facing the camera fixes its yaw least)
+  EXPECT_TRUE(r.passed) << (r.failures.empty() ? "" : r.failures[0]);
+  EXPECT_LE(r.rms_px, 0.1);
+  EXPECT_NEAR(r.max_table_slip_deg, kSlipDeg, 0.15);
+  EXPECT_LT(AxisDistanceMm(refined->estimate.rig, truth), 0.05);
+  for (int l = 0; l < 2; ++l) {
+    EXPECT_LT(NormalErrorDeg(refined->estimate.rig.laser_plane[l], truth.laser_plane[l]), 0.05) << l;
+  }
+  EXPECT_FALSE(f.passed);
+  EXPECT_GT(f.rms_px, 5 * r.rms_px);
+  EXPECT_GT(f.point_std_mm, 3 * r.point_std_mm);
+  EXPECT_GT(AxisDistanceMm(fixed->estimate.rig, truth), AxisDistanceMm(refined->estimate.rig, truth));
+}
+
+// The predicted error of a scanned point follows the corner noise: four times the noise, about four times
+// the error (the covariance is scaled by the residuals), and the report fails it beyond the threshold.
+TEST(RigCalibrationTest, PredictedPointErrorScalesWithTheNoise) {
+  const Synthetic quiet = MakeSynthetic(true, 0.05, 8, 5);
+  const Synthetic noisy = MakeSynthetic(true, 0.2, 8, 5);
+  const auto refine = [](const Synthetic& s) {
+    const auto initial = CalibrateThreeStep(s.data, {});
+    EXPECT_TRUE(initial.ok());
+    const auto refined = RefineRig(s.data, *initial, {});
+    EXPECT_TRUE(refined.ok());
+    return refined->summary;
+  };
+  const RigCalibrationSummary a = refine(quiet), b = refine(noisy);
+  ASSERT_TRUE(std::isfinite(a.point_std_mm) && std::isfinite(b.point_std_mm));
+  EXPECT_GT(a.point_std_mm, 0.0);
+  EXPECT_NEAR(b.point_std_mm / a.point_std_mm, 4.0, 1.0);
+  EXPECT_GE(a.point_std_max_mm, a.point_std_mm);
+  EXPECT_GT(a.working_distance_mm, 250.0);
+  EXPECT_LT(a.working_distance_mm, 400.0);
+  RigCalibrationOptions strict;
+  strict.max_point_std_mm = 0.5 * a.point_std_mm;
+  const auto initial = CalibrateThreeStep(quiet.data, strict);
+  ASSERT_TRUE(initial.ok());
+  const auto judged = RefineRig(quiet.data, *initial, strict);
+  ASSERT_TRUE(judged.ok());
+  EXPECT_FALSE(judged->summary.passed);
+  bool named = false;
+  for (const auto& f : judged->summary.failures)
+    named = named || f.find("a scanned point at") != std::string::npos;
+  EXPECT_TRUE(named);
 }
 
 TEST(RigCalibrationTest, ReportFailsACaptureTooSmallToFixTheAxis) {
@@ -358,6 +452,10 @@ TEST(RigCalibrationTest, WritesCalibYamlAndJsonReport) {
   EXPECT_EQ(json["failures"].size(), refined->summary.failures.size());
   EXPECT_EQ(json["per_view"].size(), s.data.target_views.size());
   EXPECT_GT(json["std_devs"]["laser_normal_deg"][0].get<double>(), 0.0);
+  EXPECT_NEAR(json["point_std_mm"].get<double>(), refined->summary.point_std_mm, 1e-12);
+  EXPECT_NEAR(static_cast<double>(fs["point_std_mm"]), refined->summary.point_std_mm, 1e-12);
+  EXPECT_EQ(json["notes"].size(), refined->summary.notes.size());
+  EXPECT_TRUE(json["per_view"][0].contains("table_angle_offset_deg"));
 }
 
 }  // namespace

@@ -372,4 +372,32 @@ Result<std::vector<TargetPose>> ReadTargetPoses(const fs::path& path) {
   return poses;
 }
 
+Status WriteTableAngles(const fs::path& path, const std::vector<TableAngle>& angles) {
+  std::string out = "# rotoscan table angles 1 (degrees)\npose,step,commanded_deg,true_deg\n";
+  for (const TableAngle& a : angles) {
+    out += std::to_string(a.pose) + "," + std::to_string(a.step) + "," +
+           FormatDouble(a.commanded_rad * 180.0 / M_PI) + "," + FormatDouble(a.true_rad * 180.0 / M_PI) +
+           "\n";
+  }
+  return WriteFileAtomically(path, out);
+}
+
+Result<std::vector<TableAngle>> ReadTableAngles(const fs::path& path) {
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<std::string> lines, ReadLines(path, "# rotoscan table angles 1"));
+  if (lines.size() > kMaxPoses) return CorruptDataError(path.string() + ": too many angles");
+  std::vector<TableAngle> angles;
+  for (std::size_t i = 0; i < lines.size(); ++i) {
+    double v[4];
+    if (!ParseNumbers(lines[i], 4, v) || v[0] < -1 || v[1] < 0 || v[0] > 1e6 || v[1] > 1e8 ||
+        v[0] != std::floor(v[0]) || v[1] != std::floor(v[1]) || std::abs(v[2]) > 1e6 ||
+        std::abs(v[3]) > 1e6) {
+      return CorruptDataError(path.string() + ": data line " + std::to_string(i + 1) +
+                              " must hold pose (>= -1), step (>= 0) and two angles in degrees");
+    }
+    angles.push_back(
+        {static_cast<int>(v[0]), static_cast<int>(v[1]), v[2] * M_PI / 180.0, v[3] * M_PI / 180.0});
+  }
+  return angles;
+}
+
 }  // namespace rotoscan::bundle

@@ -18,6 +18,8 @@
 #include "calib/cost_functions/axis_gauge.h"
 #include "calib/cost_functions/corner_reprojection.h"
 #include "calib/cost_functions/laser_on_target.h"
+#include "calib/cost_functions/scanned_point.h"
+#include "calib/cost_functions/table_angle_prior.h"
 #include "rotoscan/calib/axis_fit.h"
 #include "rotoscan/calib/plane_fit.h"
 #include "rotoscan/core/check.h"
@@ -46,9 +48,10 @@ Eigen::Isometry3d TableTurn(const geometry::Rig& rig, double angle) {
   return geometry::RotationAboutAxis(rig.axis_point_in_cam, rig.axis_direction_in_cam, angle);
 }
 
-// cam_from_target of a placement at a commanded table angle.
-Eigen::Isometry3d CamFromTargetAt(const RigEstimate& estimate, int placement, double table_angle_rad) {
-  return TableTurn(estimate.rig, estimate.angle_scale * table_angle_rad) *
+// cam_from_target of a placement at a table step and its commanded angle.
+Eigen::Isometry3d CamFromTargetAt(const RigEstimate& estimate, int placement, int step,
+                                  double table_angle_rad) {
+  return TableTurn(estimate.rig, estimate.TableAngle(placement, step, table_angle_rad)) *
          estimate.cam_from_target0[placement];
 }
 
@@ -60,7 +63,8 @@ int PlacementCount(const CalibrationData& data) {
 
 // Laser pixels of `view` as 3D points on its target plane (camera frame) under `estimate`.
 std::vector<Eigen::Vector3d> LaserPointsInCam(const LaserView& view, const RigEstimate& estimate) {
-  const Eigen::Isometry3d cam_from_target = CamFromTargetAt(estimate, view.placement, view.table_angle_rad);
+  const Eigen::Isometry3d cam_from_target =
+      CamFromTargetAt(estimate, view.placement, view.step, view.table_angle_rad);
   const Eigen::Vector3d n_in_target = view.plane_in_target.head<3>();
   const Eigen::Vector3d m = cam_from_target.linear() * n_in_target;
   const Eigen::Vector3d o = cam_from_target * (-view.plane_in_target(3) * n_in_target);
@@ -73,6 +77,56 @@ std::vector<Eigen::Vector3d> LaserPointsInCam(const LaserView& view, const RigEs
     points.push_back(ray * (m.dot(o) / denominator));
   }
   return points;
+}
+
+// A point where a scan measures (RigCalibrationSummary::point_std_mm): a pixel of laser `laser`'s line
+// seen at table angle `angle`.
+struct ScanSample {
+  int laser = 0;
+  Eigen::Vector2d pixel;
+  double angle = 0.0;
+  double distance_mm = 0.0;  // from the camera
+};
+
+// The working volume is where the target stood: heights along the axis over which its corners were seen,
+// and their largest distance from the axis. On each laser plane (which contains the axis on a usual rig),
+// points at 5 heights and 5 distances across the axis within that reach, each seen at 8 table angles over
+// a whole turn; those whose pixel is outside the image are left out.
+std::vector<ScanSample> ScanSamples(const CalibrationData& data, const RigEstimate& estimate) {
+  const geometry::Rig& rig = estimate.rig;
+  const Eigen::Vector3d a = rig.axis_direction_in_cam.normalized();
+  const Eigen::Vector3d& c = rig.axis_point_in_cam;
+  double low = std::numeric_limits<double>::infinity(), high = -low, reach = 0.0;
+  for (const TargetView& view : data.target_views) {
+    const Eigen::Isometry3d pose = CamFromTargetAt(estimate, view.placement, view.step, view.table_angle_rad);
+    for (const Eigen::Vector3d& corner : view.corners_in_target) {
+      const Eigen::Vector3d x = pose * corner - c;
+      const double h = a.dot(x);
+      low = std::min(low, h);
+      high = std::max(high, h);
+      reach = std::max(reach, (x - h * a).norm());
+    }
+  }
+  std::vector<ScanSample> samples;
+  if (!(high >= low)) return samples;
+  constexpr int kHeights = 5, kAcross = 5, kAngles = 8;
+  for (int l = 0; l < 2; ++l) {
+    const geometry::Plane& plane = rig.laser_plane[l];
+    const Eigen::Vector3d across = plane.normal.cross(a);
+    if (across.norm() < 1e-6) continue;  // a laser plane across the axis: no line on the object
+    for (int i = 0; i < kHeights; ++i) {
+      const Eigen::Vector3d on_axis = c + (low + (high - low) * i / (kHeights - 1)) * a;
+      const Eigen::Vector3d foot = on_axis - plane.SignedDistance(on_axis) * plane.normal;
+      for (int j = 0; j < kAcross; ++j) {
+        const Eigen::Vector3d x = foot + reach * (2.0 * j / (kAcross - 1) - 1.0) * across.normalized();
+        if (!(x.z() > 0)) continue;
+        const Eigen::Vector2d pixel = rig.camera.Project(x);
+        if (!rig.camera.IsInside(pixel, 0.0)) continue;
+        for (int k = 0; k < kAngles; ++k) samples.push_back({l, pixel, 2.0 * M_PI * k / kAngles, x.norm()});
+      }
+    }
+  }
+  return samples;
 }
 
 Status CheckData(const CalibrationData& data, const RigCalibrationOptions& options) {
@@ -220,11 +274,20 @@ Status RigCalibrationOptions::Check() const {
                    max_view_rms_px, max_laser_rms_mm, max_axis_rms_mm}) {
     if (!(v > 0) || !std::isfinite(v)) return InvalidArgumentError("calibration tolerances must be > 0");
   }
-  for (double v : {max_normal_std_deg, max_offset_std_mm, max_axis_std_mm, max_axis_std_deg}) {
+  for (double v :
+       {max_normal_std_deg, max_offset_std_mm, max_axis_std_mm, max_axis_std_deg, max_point_std_mm}) {
     if (!(v > 0) || !std::isfinite(v)) return InvalidArgumentError("calibration thresholds must be > 0");
+  }
+  if (!(table_angle_sigma_deg > 0) || !(table_angle_sigma_deg <= 90)) {
+    return InvalidArgumentError("table_angle_sigma_deg must be in (0, 90]");
   }
   if (max_iterations < 1) return InvalidArgumentError("max_iterations must be >= 1");
   return Status::Ok();
+}
+
+double RigEstimate::TableAngle(int placement, int step, double commanded_rad) const {
+  const auto it = angle_offset_rad.find({placement, step});
+  return angle_scale * commanded_rad + (it == angle_offset_rad.end() ? 0.0 : it->second);
 }
 
 bool PlaceTableOrigin(const CalibrationData& data, RigEstimate* estimate) {
@@ -234,7 +297,8 @@ bool PlaceTableOrigin(const CalibrationData& data, RigEstimate* estimate) {
     if (view.placement < 0 || view.placement >= static_cast<int>(estimate->cam_from_target0.size())) continue;
     geometry::Rig& rig = estimate->rig;
     const Eigen::Vector3d a = rig.axis_direction_in_cam.normalized();
-    const Eigen::Vector3d origin = estimate->cam_from_target0[static_cast<size_t>(view.placement)].translation();
+    const Eigen::Vector3d origin =
+        estimate->cam_from_target0[static_cast<size_t>(view.placement)].translation();
     const Eigen::Vector3d foot = rig.axis_point_in_cam + a.dot(origin - rig.axis_point_in_cam) * a;
     rig.axis_point_in_cam = foot - view.origin_height_mm * a;
     return true;
@@ -440,7 +504,7 @@ RigCalibrationSummary Evaluate(const CalibrationData& data, const RigEstimate& e
   double sum_sq = 0.0;
   int count = 0;
   for (const auto& view : data.target_views) {
-    const Eigen::Isometry3d pose = CamFromTargetAt(estimate, view.placement, view.table_angle_rad);
+    const Eigen::Isometry3d pose = CamFromTargetAt(estimate, view.placement, view.step, view.table_angle_rad);
     double view_sq = 0.0;
     for (std::size_t i = 0; i < view.corners_in_target.size(); ++i) {
       const Eigen::Vector3d p = pose * view.corners_in_target[i];
@@ -450,7 +514,9 @@ RigCalibrationSummary Evaluate(const CalibrationData& data, const RigEstimate& e
     sum_sq += view_sq;
     count += static_cast<int>(view.corners_in_target.size());
     s.per_view.push_back(
-        {view.name, std::sqrt(view_sq / std::max<std::size_t>(1, view.corners_in_target.size()))});
+        {view.name, std::sqrt(view_sq / std::max<std::size_t>(1, view.corners_in_target.size())),
+         geometry::RadToDeg(estimate.TableAngle(view.placement, view.step, view.table_angle_rad) -
+                            view.table_angle_rad)});
   }
   s.rms_px = count > 0 ? std::sqrt(sum_sq / count) : 0.0;
   for (int l = 0; l < 2; ++l) {
@@ -476,17 +542,36 @@ RigCalibrationSummary Evaluate(const CalibrationData& data, const RigEstimate& e
     s.failures.push_back("target seen in only " + std::to_string(s.target_views) +
                          " views: need >= " + std::to_string(options.min_target_views));
   }
+  // Pixel figures are information (the file comment): what they say about the rig is in the covariance.
   if (s.rms_px > options.max_rms_px) {
-    s.failures.push_back(
-        "corner reprojection RMS " + Fixed(s.rms_px, 3) + " px > " + Fixed(options.max_rms_px, 3) +
-        " px: check focus and motion blur, that the target is flat and its square size right");
+    s.notes.push_back("corner reprojection RMS " + Fixed(s.rms_px, 3) + " px > " +
+                      Fixed(options.max_rms_px, 3) +
+                      " px: blur, compression or a target that is not flat, or its square size wrong");
   }
   for (const auto& v : s.per_view) {
     if (v.rms_px > options.max_view_rms_px) {
-      s.failures.push_back("view " + v.name + ": reprojection RMS " + Fixed(v.rms_px, 3) + " px > " +
-                           Fixed(options.max_view_rms_px, 3) +
-                           " px: the target moved on the table or a corner was misdetected; recapture it");
+      s.notes.push_back("view " + v.name + ": reprojection RMS " + Fixed(v.rms_px, 3) + " px > " +
+                        Fixed(options.max_view_rms_px, 3) +
+                        " px: the target moved on the table, the table slipped, or a corner was misdetected");
     }
+  }
+  // Slips: each position's offset beyond the scale (its placement's mean is in the placement's pose).
+  std::string slip_view;
+  for (std::size_t v = 0; v < data.target_views.size(); ++v) {
+    const TargetView& view = data.target_views[v];
+    const double slip =
+        std::abs(geometry::RadToDeg(estimate.TableAngle(view.placement, view.step, view.table_angle_rad) -
+                                    estimate.angle_scale * view.table_angle_rad));
+    if (slip > s.max_table_slip_deg) {
+      s.max_table_slip_deg = slip;
+      slip_view = view.name;
+    }
+  }
+  s.table_angles_refined = !estimate.angle_offset_rad.empty();
+  if (s.table_angles_refined && s.max_table_slip_deg > 0.05) {
+    s.notes.push_back("the table stood up to " + Fixed(s.max_table_slip_deg, 3) +
+                      " deg from its commanded angles (at " + slip_view +
+                      "): it slips; each view's angle was refined");
   }
   for (int l = 0; l < 2; ++l) {
     const std::string name = LaserName(static_cast<LaserId>(l));
@@ -533,6 +618,23 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
   std::array<Eigen::Vector3d, 2> normals = {initial.rig.laser_plane[0].normal,
                                             initial.rig.laser_plane[1].normal};
   std::array<double, 2> offsets = {initial.rig.laser_plane[0].offset, initial.rig.laser_plane[1].offset};
+  // One table angle offset per (placement, step) observed; free where the target is seen and the angles
+  // are refined, else constant. Sized once: Ceres keeps pointers into it.
+  std::map<std::pair<int, int>, std::size_t> angle_index;
+  std::set<std::pair<int, int>> target_seen;
+  for (const auto& view : data.target_views) {
+    angle_index.emplace(std::make_pair(view.placement, view.step), angle_index.size());
+    target_seen.emplace(view.placement, view.step);
+  }
+  for (const auto& view : data.laser_views) {
+    angle_index.emplace(std::make_pair(view.placement, view.step), angle_index.size());
+  }
+  std::vector<double> angle_offsets(angle_index.size(), 0.0);
+  for (const auto& [key, index] : angle_index) {
+    const auto it = initial.angle_offset_rad.find(key);
+    if (it != initial.angle_offset_rad.end()) angle_offsets[index] = it->second;
+  }
+  auto offset_of = [&](int placement, int step) { return &angle_offsets[angle_index.at({placement, step})]; };
 
   ceres::Problem::Options problem_options;
   problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
@@ -544,7 +646,7 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
           internal::CornerReprojectionCost::Create(view.corners_in_target[i], view.corner_pixels[i],
                                                    view.table_angle_rad, options.corner_sigma_px),
           &loss, intrinsics.data(), distortion.data(), poses[view.placement].data(), axis_direction.data(),
-          axis_point.data(), &angle_scale);
+          axis_point.data(), &angle_scale, offset_of(view.placement, view.step));
     }
   }
   for (const auto& view : data.laser_views) {
@@ -553,8 +655,8 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
       problem.AddResidualBlock(internal::LaserOnTargetCost::Create(
                                    pixel, view.table_angle_rad, options.laser_sigma_mm, view.plane_in_target),
                                &loss, intrinsics.data(), distortion.data(), poses[view.placement].data(),
-                               axis_direction.data(), axis_point.data(), &angle_scale, normals[l].data(),
-                               &offsets[l]);
+                               axis_direction.data(), axis_point.data(), &angle_scale,
+                               offset_of(view.placement, view.step), normals[l].data(), &offsets[l]);
     }
   }
   problem.AddResidualBlock(internal::AxisGaugeCost::Create(axis_point, axis_direction, 1.0), nullptr,
@@ -564,6 +666,15 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
   if (!options.refine_intrinsics) problem.SetParameterBlockConstant(intrinsics.data());
   if (!options.refine_distortion) problem.SetParameterBlockConstant(distortion.data());
   if (!options.refine_angle_scale) problem.SetParameterBlockConstant(&angle_scale);
+  for (const auto& [key, index] : angle_index) {
+    if (options.refine_table_angles && target_seen.count(key) != 0) {
+      problem.AddResidualBlock(
+          internal::TableAnglePriorCost::Create(geometry::DegToRad(options.table_angle_sigma_deg)), nullptr,
+          &angle_offsets[index]);
+    } else {
+      problem.SetParameterBlockConstant(&angle_offsets[index]);
+    }
+  }
 
   ceres::Solver::Options solver_options;
   solver_options.linear_solver_type = ceres::DENSE_QR;
@@ -598,6 +709,12 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
   e.rig.axis_point_in_cam = axis_point;
   e.angle_scale = angle_scale;
   e.rig.step_angle_rad = angle_scale * data.nominal_step_rad;
+  e.angle_offset_rad.clear();
+  if (options.refine_table_angles) {
+    for (const auto& [key, index] : angle_index) {
+      if (target_seen.count(key) != 0) e.angle_offset_rad[key] = angle_offsets[index];
+    }
+  }
   for (int l = 0; l < 2; ++l) {
     const double norm = normals[l].norm();
     geometry::Plane plane;
@@ -624,30 +741,37 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
     covariance_options.null_space_rank = -1;
     covariance_options.num_threads = 1;
     ceres::Covariance covariance(covariance_options);
-    std::vector<const double*> blocks = {intrinsics.data(), distortion.data(), axis_direction.data(),
-                                         axis_point.data(), &angle_scale};
-    for (int l = 0; l < 2; ++l) {
-      blocks.push_back(normals[l].data());
-      blocks.push_back(&offsets[l]);
+    std::vector<const double*> blocks;  // the rig's free blocks: their full covariance, cross terms included
+    const std::vector<const double*> rig_blocks = {
+        intrinsics.data(), distortion.data(), axis_direction.data(), axis_point.data(), &angle_scale,
+        normals[0].data(), &offsets[0],       normals[1].data(),     &offsets[1]};
+    for (const double* b : rig_blocks) {
+      if (!problem.IsParameterBlockConstant(const_cast<double*>(b))) blocks.push_back(b);
     }
-    std::vector<std::pair<const double*, const double*>> pairs;
-    for (const double* b : blocks) {
-      if (!problem.IsParameterBlockConstant(const_cast<double*>(b))) pairs.emplace_back(b, b);
+    Eigen::MatrixXd full;  // ambient coordinates, row-major blocks in the order of `blocks`
+    std::map<const double*, int> start;
+    bool computed = covariance.Compute(blocks, &problem);
+    if (computed) {
+      int size = 0;
+      for (const double* b : blocks) {
+        start[b] = size;
+        size += problem.ParameterBlockSize(b);
+      }
+      Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> values(size, size);
+      computed = covariance.GetCovarianceMatrix(blocks, values.data());
+      full = values;
     }
-    if (covariance.Compute(pairs, &problem)) {
+    if (computed) {
       const int dof = solver_summary.num_residuals_reduced - solver_summary.num_effective_parameters_reduced;
       const double variance_factor = dof > 0 ? 2.0 * solver_summary.final_cost / dof : 1.0;
-      auto block = [&](const double* b, int n) {
-        Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(n, n);
-        if (!problem.IsParameterBlockConstant(const_cast<double*>(b))) {
-          std::vector<double> values(n * n);
-          if (covariance.GetCovarianceBlock(b, b, values.data())) {
-            cov = Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(
-                values.data(), n, n);
-          }
-        }
-        return Eigen::MatrixXd(cov * variance_factor);
+      full *= variance_factor;
+      // The covariance of blocks a and b (zero for a constant block).
+      auto cross = [&](const double* a, int na, const double* b, int nb) -> Eigen::MatrixXd {
+        const auto ia = start.find(a), ib = start.find(b);
+        if (ia == start.end() || ib == start.end()) return Eigen::MatrixXd::Zero(na, nb);
+        return full.block(ia->second, ib->second, na, nb);
       };
+      auto block = [&](const double* b, int n) { return cross(b, n, b, n); };
       StdDevs& d = s.std_devs;
       const Eigen::MatrixXd ci = block(intrinsics.data(), 4), cd = block(distortion.data(), 5);
       for (int i = 0; i < 4; ++i) d.intrinsics[i] = std::sqrt(std::max(0.0, ci(i, i)));
@@ -665,6 +789,69 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
       d.axis_point_mm = std::sqrt(std::max(0.0, (across * block(axis_point.data(), 3) * across).trace()));
       d.angle_scale = std::sqrt(std::max(0.0, block(&angle_scale, 1)(0, 0)));
       d.valid = true;
+      // The predicted error of a scanned point: the covariance of the blocks a scan uses, propagated through
+      // ScannedPoint's Jacobian at points of both laser lines where the target stood.
+      double sum_sq = 0.0, distance_sum = 0.0;
+      int count = 0;
+      for (const ScanSample& sample : ScanSamples(data, e)) {
+        const int l = sample.laser;
+        const std::array<std::pair<const double*, int>, 6> used = {{{intrinsics.data(), 4},
+                                                                    {distortion.data(), 5},
+                                                                    {normals[l].data(), 3},
+                                                                    {&offsets[l], 1},
+                                                                    {axis_direction.data(), 3},
+                                                                    {axis_point.data(), 3}}};
+        std::unique_ptr<ceres::CostFunction> point(
+            internal::ScannedPoint::Create(sample.pixel, sample.angle));
+        std::array<std::vector<double>, 6> jacobians;
+        std::array<double*, 6> jacobian_pointers{};
+        std::array<const double*, 6> parameters{};
+        for (std::size_t k = 0; k < used.size(); ++k) {
+          jacobians[k].resize(3 * used[k].second);
+          jacobian_pointers[k] = jacobians[k].data();
+          parameters[k] = used[k].first;
+        }
+        double value[3];
+        if (!point->Evaluate(parameters.data(), value, jacobian_pointers.data())) continue;
+        Eigen::Matrix3d point_covariance = Eigen::Matrix3d::Zero();
+        for (std::size_t a = 0; a < used.size(); ++a) {
+          const Eigen::Map<const Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>> ja(
+              jacobians[a].data(), 3, used[a].second);
+          for (std::size_t b = 0; b < used.size(); ++b) {
+            const Eigen::Map<const Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>> jb(
+                jacobians[b].data(), 3, used[b].second);
+            point_covariance +=
+                ja * cross(used[a].first, used[a].second, used[b].first, used[b].second) * jb.transpose();
+          }
+        }
+        const double variance = std::max(0.0, point_covariance.trace());
+        sum_sq += variance;
+        s.point_std_max_mm =
+            count == 0 ? std::sqrt(variance) : std::max(s.point_std_max_mm, std::sqrt(variance));
+        distance_sum += sample.distance_mm;
+        ++count;
+      }
+      if (count > 0) {
+        s.point_std_mm = std::sqrt(sum_sq / count);
+        s.working_distance_mm = distance_sum / count;
+        if (s.point_std_mm > options.max_point_std_mm) {
+          s.failures.push_back(
+              "a scanned point at " + Fixed(s.working_distance_mm, 0) + " mm would be off by +-" +
+              Fixed(s.point_std_mm, 4) + " mm (predicted from the calibration's uncertainty, up to +-" +
+              Fixed(s.point_std_max_mm, 4) + " mm) > " + Fixed(options.max_point_std_mm, 4) +
+              " mm: capture the target at more table positions and placements, sharper (corners fit to " +
+              Fixed(s.rms_px, 2) + " px RMS)");
+        }
+      } else {
+        s.failures.push_back(
+            "no point of the laser lines where the target stood is in the image: the "
+            "scanned point error cannot be predicted");
+      }
+      const double turn_deg = 360.0 * d.angle_scale;
+      if (turn_deg > 0.1) {
+        s.notes.push_back("table angle scale " + Fixed(e.angle_scale, 5) + " +-" + Fixed(d.angle_scale, 5) +
+                          ": a whole turn is known to +-" + Fixed(turn_deg, 2) + " deg");
+      }
       // Pass/fail on what the capture could determine.
       for (int l = 0; l < 2; ++l) {
         const std::string name = LaserName(static_cast<LaserId>(l));
@@ -709,16 +896,28 @@ Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibrat
        << "[";
     for (const auto& f : s.failures) fs << f;
     fs << "]";
+    fs << "report_notes"
+       << "[";
+    for (const auto& n : s.notes) fs << n;
+    fs << "]";
+    // NaN (not computed) is written as -1.
+    fs << "point_std_mm" << (std::isfinite(s.point_std_mm) ? s.point_std_mm : -1.0);
+    fs << "point_std_max_mm" << (std::isfinite(s.point_std_max_mm) ? s.point_std_max_mm : -1.0);
+    fs << "working_distance_mm" << s.working_distance_mm;
+    fs << "table_angles_refined" << static_cast<int>(s.table_angles_refined);
+    fs << "max_table_slip_deg" << s.max_table_slip_deg;
     fs << "rms_px" << s.rms_px;
-    std::vector<double> view_rms;
+    std::vector<double> view_rms, view_angle;
     fs << "per_view_names"
        << "[";
     for (const auto& v : s.per_view) {
       fs << v.name;
       view_rms.push_back(v.rms_px);
+      view_angle.push_back(v.table_angle_offset_deg);
     }
     fs << "]";
     fs << "per_view_rms_px" << cv::Mat(view_rms, true);
+    fs << "per_view_table_angle_offset_deg" << cv::Mat(view_angle, true);
     fs << "laser_left_rms_mm" << s.laser_rms_mm[0] << "laser_right_rms_mm" << s.laser_rms_mm[1];
     fs << "laser_left_points" << s.laser_points[0] << "laser_right_points" << s.laser_points[1];
     fs << "axis_fit_rms_mm" << s.axis_fit_rms_mm << "angle_scale" << s.angle_scale;
@@ -745,12 +944,23 @@ std::string SummaryToJson(const RigCalibrationSummary& s) {
   nlohmann::json j;
   j["passed"] = s.passed;
   j["failures"] = s.failures;
+  j["notes"] = s.notes;
+  // null when not computed
+  j["point_std_mm"] = std::isfinite(s.point_std_mm) ? nlohmann::json(s.point_std_mm) : nlohmann::json();
+  j["point_std_max_mm"] =
+      std::isfinite(s.point_std_max_mm) ? nlohmann::json(s.point_std_max_mm) : nlohmann::json();
+  j["working_distance_mm"] = s.working_distance_mm;
+  j["table_angles_refined"] = s.table_angles_refined;
+  j["max_table_slip_deg"] = s.max_table_slip_deg;
   j["converged"] = s.converged;
   j["termination"] = s.termination;
   j["iterations"] = s.iterations;
   j["rms_px"] = s.rms_px;
   nlohmann::json views = nlohmann::json::array();
-  for (const auto& v : s.per_view) views.push_back({{"name", v.name}, {"rms_px", v.rms_px}});
+  for (const auto& v : s.per_view) {
+    views.push_back(
+        {{"name", v.name}, {"rms_px", v.rms_px}, {"table_angle_offset_deg", v.table_angle_offset_deg}});
+  }
   j["per_view"] = views;
   j["laser"] = {{"left", {{"rms_mm", s.laser_rms_mm[0]}, {"points", s.laser_points[0]}}},
                 {"right", {{"rms_mm", s.laser_rms_mm[1]}, {"points", s.laser_points[1]}}}};

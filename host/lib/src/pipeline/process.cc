@@ -40,6 +40,7 @@ int FindRow(const std::vector<int>& rows, int row) {
 BundleStepSource::BundleStepSource(bundle::Bundle bundle) : bundle_(std::move(bundle)) {
   for (const bundle::FrameRecord& f : bundle_.frames) {
     if (f.pose < 0) steps_.push_back(f.step);
+    if (f.pose < 0 && f.laser == bundle::LaserState::kOff) has_off_frames_ = true;
   }
   std::sort(steps_.begin(), steps_.end());
   steps_.erase(std::unique(steps_.begin(), steps_.end()), steps_.end());
@@ -124,6 +125,16 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
     extract.layout = laser::PixelLayout::kBayerRggb;
   const laser::Triangulator triangulator(rig.camera);
   const geometry::CameraModel& camera = rig.camera;
+  // The background of steps without a laser-off frame (see the header).
+  const bool dark = !options.dark_frame.empty();
+  const bool zero_background = !dark && !source.has_off_frames();
+  if (dark && (options.dark_frame.cols != camera.width || options.dark_frame.rows != camera.height)) {
+    return InvalidArgumentError("dark frame size " + std::to_string(options.dark_frame.cols) + "x" +
+                                std::to_string(options.dark_frame.rows) + " differs from the calibration's " +
+                                std::to_string(camera.width) + "x" + std::to_string(camera.height));
+  }
+  const cv::Mat dark_frame = dark ? To8Bit(options.dark_frame, source.bit_depth()) : cv::Mat();
+  std::atomic<int> background_steps{0};  // steps processed against the dark frame or zero
 
   std::vector<StepOutput> outputs(static_cast<size_t>(steps));
   std::mutex mutex;
@@ -158,7 +169,8 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
         continue;
       }
       StepFrames& f = *loaded;
-      if (f.off.empty() || (f.laser[0].empty() && f.laser[1].empty())) {
+      const bool use_background = f.off.empty() && (dark || zero_background);
+      if ((f.off.empty() && !use_background) || (f.laser[0].empty() && f.laser[1].empty())) {
         warn(f.name + " skipped: " + (f.off.empty() ? "no laser-off frame" : "no laser frame"));
         continue;
       }
@@ -179,7 +191,25 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
         stop = true;
         break;
       }
-      const cv::Mat off = To8Bit(f.off, source.bit_depth());
+      cv::Mat off;
+      if (!use_background) {
+        off = To8Bit(f.off, source.bit_depth());
+      } else {
+        const cv::Mat& on = f.laser[0].empty() ? f.laser[1] : f.laser[0];
+        const cv::Mat on8 = To8Bit(on, source.bit_depth());
+        if (dark && dark_frame.type() != on8.type()) {
+          std::lock_guard<std::mutex> lock(mutex);
+          if (first_error.ok()) {
+            first_error = InvalidArgumentError("dark frame has " + std::to_string(dark_frame.channels()) +
+                                               " channels, the laser frames of " + f.name + " " +
+                                               std::to_string(on8.channels()));
+          }
+          stop = true;
+          break;
+        }
+        off = dark ? dark_frame : cv::Mat::zeros(on8.size(), on8.type());
+        ++background_steps;
+      }
       cv::Mat natural;
       if (!f.natural.empty()) {
         natural = To8Bit(f.natural, source.bit_depth());
@@ -242,6 +272,17 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
   s.steps = steps;
   s.skipped_steps = skipped;
   s.warnings = warnings;
+  if (background_steps.load() > 0) {
+    const std::string what = dark ? "the dark frame" : "a zero background";
+    s.background_steps = background_steps.load();
+    s.warnings.insert(
+        s.warnings.begin(),
+        std::to_string(s.background_steps) + " steps have no laser-off frame" +
+            (zero_background ? " (the scan has none: laser-on frames captured in the dark?)" : "") +
+            ": their laser lines were found against " + what +
+            ", so ambient light in the laser frames counts as laser");
+    ROTOSCAN_LOG(kWarning) << s.warnings.front();
+  }
   if (skipped > static_cast<int>(kMaxWarnings)) {
     s.warnings.push_back("... and " + std::to_string(skipped - static_cast<int>(kMaxWarnings)) + " more");
   }

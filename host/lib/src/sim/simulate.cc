@@ -35,9 +35,18 @@ constexpr double kFramePeriodUs = 1e6 / 30.0;  // trigger period of the virtual 
 struct Job {
   int pose = -1;
   int step = 0;
-  double angle = 0.0;
+  double angle = 0.0;  // commanded table angle (bundle.json)
   FrameMask mask = kAllFrames;
+  double true_angle = 0.0;  // where the table is when the frames are exposed (rendering and truth/)
 };
+
+// The deviation of the true table angle from the commanded one at a step (SimulateOptions::table_slip_deg):
+// uniform in +-slip, from the scene seed and the step only.
+double TableSlip(uint64_t scene_seed, int pose, int step, double slip_rad) {
+  if (!(slip_rad > 0)) return 0.0;
+  const double u = static_cast<double>(FrameSeed(scene_seed, pose, step, 0x51) >> 11) * 0x1.0p-53;  // [0, 1)
+  return slip_rad * (2.0 * u - 1.0);
+}
 
 const ObjectSpec* FindObject(const Scene& scene, ObjectType type) {
   for (const ObjectSpec& o : scene.objects) {
@@ -93,6 +102,12 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   const SimulateKind kind = options.kind;
   int steps = options.steps;
   if (steps < 0) return InvalidArgumentError("steps must be >= 0");
+  if (!(options.table_slip_deg >= 0.0) || !(options.table_slip_deg <= 45.0)) {
+    return InvalidArgumentError("table slip must be in [0, 45] degrees");
+  }
+  if (options.table_slip_deg > 0.0 && kind == SimulateKind::kCheckerboard) {
+    return InvalidArgumentError("table slip needs a table: the hand-held checkerboard kind has none");
+  }
   if (steps == 0) {
     steps = kind == SimulateKind::kScan                ? scene.steps
             : kind == SimulateKind::kCalibrationObject ? 1
@@ -137,7 +152,7 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   }
   switch (kind) {
     case SimulateKind::kScan:
-      for (int s = 0; s < steps; ++s) jobs.push_back({-1, s, s * scene.rig.step_angle_rad, kAllFrames});
+      for (int s = 0; s < steps; ++s) jobs.push_back({-1, s, s * scene.rig.step_angle_rad, kAllFrames, 0.0});
       break;
     case SimulateKind::kCalibrationObject:
     case SimulateKind::kTableCheckerboard: {
@@ -146,14 +161,16 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
       for (int s = 0; s < steps; ++s) {
         const double wanted = steps == 1 ? 0.0 : -span / 2 + span * s / (steps - 1);
         const double motor_steps = std::round(wanted / scene.rig.step_angle_rad);
-        jobs.push_back({0, s, motor_steps * scene.rig.step_angle_rad, kAllFrames});
+        jobs.push_back({0, s, motor_steps * scene.rig.step_angle_rad, kAllFrames, 0.0});
       }
       break;
     }
     case SimulateKind::kCheckerboard:
-      for (int p = 0; p < steps; ++p) jobs.push_back({p, 0, 0.0, {false, false, false, true}});
+      for (int p = 0; p < steps; ++p) jobs.push_back({p, 0, 0.0, {false, false, false, true}, 0.0});
       break;
   }
+  const double slip_rad = geometry::DegToRad(options.table_slip_deg);
+  for (Job& job : jobs) job.true_angle = job.angle + TableSlip(scene.seed, job.pose, job.step, slip_rad);
   header.table_step_rad = scene.rig.step_angle_rad;
   header.camera.name = "virtual " + scene.preset + " " + std::to_string(scene.rig.camera.width) + "x" +
                        std::to_string(scene.rig.camera.height);
@@ -190,7 +207,7 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
       header.target.origin_height_mm = table_from_target.translation().z();
       for (const Job& job : jobs) {
         const Eigen::Isometry3d cam_from_target =
-            scene.rig.WorldFromCamAtAngle(job.angle).inverse() * table_from_target;
+            scene.rig.WorldFromCamAtAngle(job.true_angle).inverse() * table_from_target;
         poses.push_back({job.pose, job.step, cam_from_target});
       }
     }
@@ -215,6 +232,11 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
     } else {
       ROTOSCAN_RETURN_IF_ERROR(bundle::WriteTargetPoses(work / "truth" / "poses.csv", poses));
     }
+    if (kind != SimulateKind::kCheckerboard) {
+      std::vector<bundle::TableAngle> angles;
+      for (const Job& job : jobs) angles.push_back({job.pose, job.step, job.angle, job.true_angle});
+      ROTOSCAN_RETURN_IF_ERROR(bundle::WriteTableAngles(bundle::TruthTableAnglesPath(work), angles));
+    }
   }
 
   ProgressScope scope(progress, "render", jobs.size());
@@ -234,7 +256,7 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
       }
       const Renderer& renderer = *renderers[kind == SimulateKind::kCheckerboard ? job.pose : 0];
       const uint64_t seed = FrameSeed(scene.seed, job.pose, job.step, 0);
-      RenderedStep rendered = renderer.RenderStep(job.angle, seed, job.mask);
+      RenderedStep rendered = renderer.RenderStep(job.true_angle, seed, job.mask);
       Status status;
       for (int f = 0; f < 4 && status.ok(); ++f) {
         if (!job.mask[f]) continue;
@@ -245,7 +267,7 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
         record.exposure_us = f == 3 ? scene.sensor.natural_exposure_us : scene.sensor.laser_exposure_us;
         status = writer->AddFrame(record, rendered.frames[f]);
         if (status.ok() && options.truth && f < 2) {
-          const auto truth = renderer.LineTruth(static_cast<geometry::LaserId>(f), job.angle);
+          const auto truth = renderer.LineTruth(static_cast<geometry::LaserId>(f), job.true_angle);
           status = bundle::WriteLineTruth(bundle::LineTruthPath(work, record), truth);
         }
       }

@@ -17,6 +17,10 @@
 //                           object = 0 for the table top, 1.. for the scene's objects in order.
 //   truth/poses.csv         calibration bundles: cam_from_target for every (pose, step):
 //                             pose,step,r00,r01,r02,r10,r11,r12,r20,r21,r22,tx,ty,tz   (mm)
+//   truth/table_angles.csv  bundles with a table (scan, calibration on the table): the commanded table
+//                           angle (the one in bundle.json) and the true one of every (pose, step); they
+//                           differ when the virtual table slips (sim/simulate.h):
+//                             pose,step,commanded_deg,true_deg
 #pragma once
 
 #include <array>
@@ -56,6 +60,13 @@ struct TargetPose {
   Eigen::Isometry3d cam_from_target = Eigen::Isometry3d::Identity();
 };
 
+struct TableAngle {
+  int pose = -1;
+  int step = 0;
+  double commanded_rad = 0.0;
+  double true_rad = 0.0;
+};
+
 // Binary little-endian PLY with vertex colors. The reader also accepts ASCII PLY and bounds all counts.
 Status WritePlyMesh(const std::filesystem::path& path, const TruthMesh& mesh);  // atomic
 Result<TruthMesh> ReadPlyMesh(const std::filesystem::path& path);
@@ -68,6 +79,9 @@ Result<std::vector<LinePoint>> ReadLineTruth(const std::filesystem::path& path);
 Status WriteTargetPoses(const std::filesystem::path& path, const std::vector<TargetPose>& poses);  // atomic
 Result<std::vector<TargetPose>> ReadTargetPoses(const std::filesystem::path& path);
 
+Status WriteTableAngles(const std::filesystem::path& path, const std::vector<TableAngle>& angles);  // atomic
+Result<std::vector<TableAngle>> ReadTableAngles(const std::filesystem::path& path);
+
 // Convenience for a read bundle: the line truth of one frame / truth/rig.yaml path / truth/object.ply.
 Result<std::vector<LinePoint>> ReadLineTruth(const Bundle& bundle, const FrameRecord& frame);
 inline std::filesystem::path TruthRigPath(const std::filesystem::path& bundle_dir) {
@@ -78,6 +92,9 @@ inline std::filesystem::path TruthMeshPath(const std::filesystem::path& bundle_d
 }
 inline std::filesystem::path TruthPosesPath(const std::filesystem::path& bundle_dir) {
   return bundle_dir / "truth" / "poses.csv";
+}
+inline std::filesystem::path TruthTableAnglesPath(const std::filesystem::path& bundle_dir) {
+  return bundle_dir / "truth" / "table_angles.csv";
 }
 
 }  // namespace rotoscan::bundle

@@ -8,9 +8,17 @@
 // each with its own extractor and buffers, and write into per-step slots, so the output order (step, laser,
 // row) does not depend on scheduling.
 //
+// Scans without laser-off frames: some rigs capture the laser-on frames in the dark only (FabScanPi does by
+// default). When the source has no laser-off frame at all, every step's background is
+// ProcessOptions::dark_frame if one is given (the lasers off, captured once), else zero, and the summary
+// carries one warning (ambient light in the laser frames is then taken for laser). A source that has
+// laser-off frames but lacks one at some step skips that step (frames were lost), unless a dark frame is
+// given.
+//
 // Bad input: a frame whose size differs from the calibration is an error (kInvalidArgument naming the
-// file); a step missing its laser-off frame or both laser frames, or a frame that does not decode, is a
-// counted skip (ProcessSummary::skipped_steps, reasons in `warnings`); no step at all is an error.
+// file), as is a dark frame of another size or type than the laser frames; a step missing its laser-off
+// frame (see above) or both laser frames, or a frame that does not decode, is a counted skip
+// (ProcessSummary::skipped_steps, reasons in `warnings`); no step at all is an error.
 #pragma once
 
 #include <array>
@@ -49,6 +57,8 @@ class StepSource {
   virtual Result<StepFrames> Load(int index) const = 0;
   virtual bool bayer() const { return false; }
   virtual int bit_depth() const { return 8; }
+  // False when no step has a laser-off frame (a capture in the dark; see the file comment).
+  virtual bool has_off_frames() const { return true; }
 };
 
 // Steps of a scan bundle (bundle/bundle.h), by step index.
@@ -59,10 +69,12 @@ class BundleStepSource : public StepSource {
   Result<StepFrames> Load(int index) const override;
   bool bayer() const override { return bundle_.header.camera.bayer; }
   int bit_depth() const override { return bundle_.header.camera.bit_depth; }
+  bool has_off_frames() const override { return has_off_frames_; }
 
  private:
   bundle::Bundle bundle_;
   std::vector<int> steps_;  // distinct step indices present, ascending
+  bool has_off_frames_ = false;
 };
 
 struct ProcessOptions {
@@ -74,6 +86,9 @@ struct ProcessOptions {
   bool merge = true;  // merge the two lasers without duplicate layers (cloud/merge.h)
   cloud::MergeOptions merge_options;
   double max_neighbor_mm = 3.0;  // normals: neighbours further than this are a different surface
+  // Background for steps without a laser-off frame (see the file comment): stored like the frames (same
+  // size, type and bit depth); empty: zero when the source has no laser-off frame at all.
+  cv::Mat dark_frame;
 
   Status Check() const;
 };
@@ -82,6 +97,7 @@ struct ProcessSummary {
   int steps = 0;
   int processed_steps = 0;
   int skipped_steps = 0;
+  int background_steps = 0;  // processed without their own laser-off frame (dark frame or zero)
   std::array<size_t, 2> points_per_laser{};  // after extraction and triangulation
   size_t points_with_normal = 0;
   size_t points_out = 0;

@@ -15,6 +15,13 @@
 // Calibration kinds take their target from the scene's objects when it has one of the right type, and
 // render with at least 2 x 2 supersampling (their checker patterns are also box-filtered analytically).
 //
+// A table that slips (table_slip_deg > 0; scan, calib-object and table-checkerboard kinds): every table
+// position is rendered at its commanded angle plus a deviation drawn uniformly in +-table_slip_deg (from the
+// scene seed and the step, independent of the step count and the thread count), as a real turntable that
+// misses or overshoots steps (issue 15: a real sweep stepped 2.9 or 4.05 degrees for a commanded 3.6).
+// bundle.json keeps the commanded angle; the truth (truth/table_angles.csv, truth/poses.csv, the line
+// truth) is at the true one.
+//
 // Frames are rendered in parallel (std::thread, one step at a time per thread); every frame's noise comes
 // from FrameSeed(scene.seed, pose, step, frame), so the output does not depend on the thread count.
 #pragma once
@@ -40,6 +47,7 @@ struct SimulateOptions {
   bool overwrite = false;
   bool resume = false;             // continue an interrupted bundle at `out` (same scene and options)
   bool truth = true;               // write truth/
+  double table_slip_deg = 0.0;     // >= 0: largest deviation of a true table angle from the commanded one
 };
 
 Status Simulate(const Scene& scene, const SimulateOptions& options, Progress* progress);

@@ -3,7 +3,8 @@
 // Residual (2): (projected - observed pixel) / sigma_px, with the projection of geometry/camera.h applied
 // to the corner moved by the table model (table_model.h). Parameter blocks: intrinsics[4] (fx fy cx cy),
 // distortion[5], pose[6] (cam_from_target at table angle 0: angle-axis, mm), axis_direction[3], axis_point[3]
-// (mm), angle_scale[1] (real / nominal table angle).
+// (mm), angle_scale[1] (real / nominal table angle), angle_offset[1] (rad: where the table stood at this
+// view beyond angle_scale times the commanded angle; table_angle_prior.h).
 #pragma once
 
 #include <ceres/autodiff_cost_function.h>
@@ -25,10 +26,11 @@ class CornerReprojectionCost {
 
   template <typename T>
   bool operator()(const T* intrinsics, const T* distortion, const T* pose, const T* axis_direction,
-                  const T* axis_point, const T* angle_scale, T* residual) const {
+                  const T* axis_point, const T* angle_scale, const T* angle_offset, T* residual) const {
     const T corner[3] = {T(corner_in_target_.x()), T(corner_in_target_.y()), T(corner_in_target_.z())};
     T point_in_cam[3];
-    TargetPointInCam(pose, axis_direction, axis_point, angle_scale, nominal_angle_, corner, point_in_cam);
+    TargetPointInCam(pose, axis_direction, axis_point, angle_scale, angle_offset, nominal_angle_, corner,
+                     point_in_cam);
     if (!(point_in_cam[2] > T(0))) return false;  // behind the camera: reject the step
     T pixel[2];
     geometry::ProjectToPixel(intrinsics, distortion, point_in_cam, pixel);
@@ -39,7 +41,7 @@ class CornerReprojectionCost {
 
   static ceres::CostFunction* Create(const Eigen::Vector3d& corner_in_target, const Eigen::Vector2d& pixel,
                                      double nominal_angle, double sigma_px) {
-    return new ceres::AutoDiffCostFunction<CornerReprojectionCost, 2, 4, 5, 6, 3, 3, 1>(
+    return new ceres::AutoDiffCostFunction<CornerReprojectionCost, 2, 4, 5, 6, 3, 3, 1, 1>(
         new CornerReprojectionCost(corner_in_target, pixel, nominal_angle, sigma_px));
   }
 

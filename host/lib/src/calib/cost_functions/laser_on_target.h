@@ -5,7 +5,8 @@
 // This is the paper's step 2 (eq. 11) made part of the joint solve: the 3D point moves with the camera and
 // target estimates instead of being frozen after step 1.
 // Parameter blocks: intrinsics[4], distortion[5], pose[6], axis_direction[3], axis_point[3], angle_scale[1],
-// plane_normal[3] (unit, camera frame), plane_offset[1] (mm).
+// angle_offset[1] (rad, the table position's; corner_reprojection.h), plane_normal[3] (unit, camera frame),
+// plane_offset[1] (mm).
 #pragma once
 
 #include <ceres/autodiff_cost_function.h>
@@ -24,8 +25,8 @@ class LaserOnTargetCost {
 
   template <typename T>
   bool operator()(const T* intrinsics, const T* distortion, const T* pose, const T* axis_direction,
-                  const T* axis_point, const T* angle_scale, const T* plane_normal, const T* plane_offset,
-                  T* residual) const {
+                  const T* axis_point, const T* angle_scale, const T* angle_offset, const T* plane_normal,
+                  const T* plane_offset, T* residual) const {
     // The target plane in the camera frame: its point nearest the target origin (-d_t n_t) and that point
     // moved along the unit normal.
     const T origin_in_target[3] = {T(-plane_(3) * plane_(0)), T(-plane_(3) * plane_(1)),
@@ -33,8 +34,10 @@ class LaserOnTargetCost {
     const T z_in_target[3] = {origin_in_target[0] + T(plane_(0)), origin_in_target[1] + T(plane_(1)),
                               origin_in_target[2] + T(plane_(2))};
     T origin[3], z_tip[3];
-    TargetPointInCam(pose, axis_direction, axis_point, angle_scale, nominal_angle_, origin_in_target, origin);
-    TargetPointInCam(pose, axis_direction, axis_point, angle_scale, nominal_angle_, z_in_target, z_tip);
+    TargetPointInCam(pose, axis_direction, axis_point, angle_scale, angle_offset, nominal_angle_,
+                     origin_in_target, origin);
+    TargetPointInCam(pose, axis_direction, axis_point, angle_scale, angle_offset, nominal_angle_, z_in_target,
+                     z_tip);
     const T m[3] = {z_tip[0] - origin[0], z_tip[1] - origin[1], z_tip[2] - origin[2]};
     T ray[3] = {T(0), T(0), T(1)};
     UndistortPixel(intrinsics, distortion, pixel_.x(), pixel_.y(), &ray[0], &ray[1]);
@@ -52,7 +55,7 @@ class LaserOnTargetCost {
 
   static ceres::CostFunction* Create(const Eigen::Vector2d& pixel, double nominal_angle, double sigma_mm,
                                      const Eigen::Vector4d& plane_in_target = Eigen::Vector4d(0, 0, 1, 0)) {
-    return new ceres::AutoDiffCostFunction<LaserOnTargetCost, 1, 4, 5, 6, 3, 3, 1, 3, 1>(
+    return new ceres::AutoDiffCostFunction<LaserOnTargetCost, 1, 4, 5, 6, 3, 3, 1, 1, 3, 1>(
         new LaserOnTargetCost(pixel, nominal_angle, sigma_mm, plane_in_target));
   }
 

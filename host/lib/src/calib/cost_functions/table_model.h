@@ -1,10 +1,11 @@
 // The rig model shared by the calibration cost functions (private header), templated for Ceres Jets.
 //
 // A target placement p has a pose cam_from_target0 (angle-axis[3], translation[3] in mm) at table angle 0.
-// At the commanded (nominal) table angle theta the table has turned by angle_scale * theta right-handed
-// about the axis (unit direction a through point c, camera frame); angle_scale absorbs a stepper whose
-// real step differs from the nominal one. So (the paper's eq. 7 generalised to a tilted axis):
-//   point_in_cam = c + Rot(a, angle_scale * theta) (R0 point_in_target + t0 - c).
+// At the commanded (nominal) table angle theta the table has turned by angle_scale * theta + offset
+// right-handed about the axis (unit direction a through point c, camera frame); angle_scale absorbs a
+// stepper whose real step differs from the nominal one, offset (one per table position, 0 and constant
+// when not refined) a table that slipped there. So (the paper's eq. 7 generalised to a tilted axis):
+//   point_in_cam = c + Rot(a, angle_scale * theta + offset) (R0 point_in_target + t0 - c).
 // Undistortion inverts geometry::DistortNormalized with Newton steps on its analytic 2x2 Jacobian; at
 // convergence the Jets carry the implicit-function derivative, so it is exact for Ceres.
 #pragma once
@@ -29,10 +30,11 @@ void RotateAboutUnitAxis(const T* axis, const T& angle, const T* v, T* out) {
 
 // point_in_cam of `point_in_target` at the nominal table angle `nominal_angle` (radians; see the file
 // comment). `pose` = angle-axis[3], translation[3] of cam_from_target at angle 0; `axis_direction` need
-// not be exactly unit.
+// not be exactly unit; `angle_offset`[1] (radians) is added to the modelled table angle.
 template <typename T>
 void TargetPointInCam(const T* pose, const T* axis_direction, const T* axis_point, const T* angle_scale,
-                      double nominal_angle, const T* point_in_target, T* point_in_cam) {
+                      const T* angle_offset, double nominal_angle, const T* point_in_target,
+                      T* point_in_cam) {
   T at_zero[3];
   ceres::AngleAxisRotatePoint(pose, point_in_target, at_zero);
   const T norm = sqrt(axis_direction[0] * axis_direction[0] + axis_direction[1] * axis_direction[1] +
@@ -41,7 +43,7 @@ void TargetPointInCam(const T* pose, const T* axis_direction, const T* axis_poin
   const T relative[3] = {at_zero[0] + pose[3] - axis_point[0], at_zero[1] + pose[4] - axis_point[1],
                          at_zero[2] + pose[5] - axis_point[2]};
   T turned[3];
-  RotateAboutUnitAxis(axis, T(nominal_angle) * angle_scale[0], relative, turned);
+  RotateAboutUnitAxis(axis, T(nominal_angle) * angle_scale[0] + angle_offset[0], relative, turned);
   for (int i = 0; i < 3; ++i) point_in_cam[i] = turned[i] + axis_point[i];
 }
 
