@@ -5,15 +5,40 @@
 // buffer lives in the extractor), the rows a few ahead prefetched so that memory and work overlap:
 //  1. d[i] = max(on[i] - off[i], 0) on the laser channel (differential imaging, paper §3.1), 16 pixels
 //     per SSE2 instruction, and the bit mask of d >= T per 64-pixel group, groups without a bit dropped.
+//     A pixel saturated in the laser-on frame over an off pixel with headroom (off <= 255 - T) counts as
+//     255 whatever its difference: on real webcam frames the on frame saturates over a bright texel and
+//     the difference dips inside the line (DESIGN.md, the real row `146 145 53 164 44`), which split
+//     the line into pieces that failed the width test, so that a weak candidate 8-16 px away won
+//     (issue 15). A run holding such pixels then gives them all its plateau (the highest true difference
+//     among them) before it is measured (step 3), so the notch is filled and the plateau stays flat.
 //  2. No bit in the row: no laser (the common case for rows above and below the object: it costs only
 //     step 1, which runs at the memory-bandwidth bound, laser_bench BM_RowPassOnly).
 //  3. Otherwise the candidates are the runs of set bits. For each run: its peak p, the half-maximum extent
 //     [a, b] around the peak (vector scans), the width at half maximum (edges interpolated linearly), and
 //     whether the laser-off frame is saturated under it (a specular highlight that hides the laser).
+//     Runs within kMergeGapPx of the previous candidate's half-maximum extent join it (a dark speckle
+//     grain or a noise dip inside one line).
 //  4. Candidates narrower than min_width (glints, hot pixels) or wider than max_width (ambient blobs) are
 //     dropped. Of the others the highest peak wins; a rival within multiple_peak_ratio of it flags the row
 //     (kFlagMultiplePeaks), and then the one nearer the previous row's point wins (lines are continuous).
+//     The winner is never much weaker (below multiple_peak_ratio) than a rejected candidate unless that
+//     one was too narrow (a hot pixel, a glint's core: kFlagStrongerRejected); a much stronger one that
+//     was too wide or hidden under a saturated off pixel may be the laser, so the row gets no point
+//     (stats.stronger_rejected) rather than a stray one (RealFramesTest.NeverAWeakCandidate...).
 //  5. The sub-pixel centre of the winner, by the chosen estimator.
+//
+// Uncertainty (LinePoint::uncertainty_px, about two standard errors). The centre of mass of a profile of
+// width W (px at half maximum) and peak P over noise sigma_n moves by sigma_n / P * sqrt(W / 12) from the
+// noise; a multiplicative speckle field of contrast C and grain g px moves it by about C sqrt(g W / 12),
+// which for the speckle of our presets and of real webcams (C ~ 0.3, g ~ 1-3 px) is ~0.08 sqrt(W)
+// (kSpeckleTerm2); and a lopsided profile (texture across the line, a glint's lobe, an edge) shows as the
+// distance between the centre of mass and the middle of the half-maximum extent, which enters whole.
+// u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2). The quality is divided by 1 + u^2, so that the points
+// of lowest quality are those with the largest expected errors (RenderedLineTest.WebcamQuality...). The
+// along-line smoothing moves a point by at most u, and not at all where saturation begins or ends
+// between neighbouring rows or where the profile is lopsided (its asymmetry over a quarter of W): there
+// the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
+// 1-2 px from their own centres).
 //
 // Estimators and the saturated plateau. Real lines are 7-16 px wide and flat-topped (the on-frame clips
 // at 255), so any estimator that reads only the brightest pixel and its two neighbours is biased toward
@@ -1129,8 +1154,21 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     // Uncertainty (see the design notes): noise, speckle and the profile's asymmetry.
     const double asymmetry = column - 0.5 * (c.first + c.last);
     const double noise_term = stats.noise_dn / c.peak * std::sqrt(width * (1.0 / 12.0));
-    const double uncertainty =
-        2.0 * std::sqrt(noise_term * noise_term + kSpeckleTerm2 * width + asymmetry * asymmetry);
+    // Texture across the line: the laser's reflection is weighed by the albedo, which the laser-off frame
+    // shows; an albedo that differs between the line's two halves pulls the centre towards the brighter
+    // one, by up to a quarter of the width for a step across the middle.
+    double texture_term = 0.0;
+    {
+      const int middle = static_cast<int>(column + 0.5);
+      int left = 0, right = 0;
+      for (int i = c.com_first; i < middle; ++i) left += b[i];
+      for (int i = middle + 1; i <= c.com_last; ++i) right += b[i];
+      const int nl = std::max(1, middle - c.com_first), nr = std::max(1, c.com_last - middle);
+      const double ml = static_cast<double>(left) / nl, mr = static_cast<double>(right) / nr;
+      texture_term = 0.25 * width * std::abs(ml - mr) / std::max(1.0, ml + mr);
+    }
+    const double uncertainty = 2.0 * std::sqrt(noise_term * noise_term + kSpeckleTerm2 * width +
+                                               asymmetry * asymmetry + texture_term * texture_term);
     double quality = 1.0;
     if (stats.noise_dn > 0) quality *= std::min(1.0, c.peak * quality_per_snr);
     quality *= std::min(1.0, (c.peak - 0.5 * threshold) * quality_per_contrast);
@@ -1153,6 +1191,32 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     if (flags & kFlagMultiplePeaks) ++stats.multiple_peaks;
     previous_column = column;
     previous_row = r;
+  }
+  {
+    // A steep line (a surface seen at a grazing angle: the line runs along the rows) has a poorly defined
+    // centre per row: an error of the profile along the row is the slope times one across it. The
+    // uncertainty grows by sqrt(1 + slope^2), the slope from the neighbouring rows' centres.
+    std::vector<LinePoint>& points = line->points;
+    const size_t n = points.size();
+    float before = 0.0f;
+    for (size_t i = 0; i < n; ++i) {
+      const LinePoint& p = points[i];
+      const bool up = i > 0 && points[i - 1].row + 1 == p.row;
+      const bool down = i + 1 < n && points[i + 1].row == p.row + 1;
+      const float here = p.column;
+      float slope = 0.0f;
+      if (up && down) {
+        slope = 0.5f * (points[i + 1].column - before);
+      } else if (up) {
+        slope = here - before;
+      } else if (down) {
+        slope = points[i + 1].column - here;
+      }
+      before = here;
+      const float grow = 1.0f + slope * slope;
+      points[i].uncertainty_px *= std::sqrt(grow);
+      points[i].quality /= grow;
+    }
   }
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;
