@@ -9,6 +9,8 @@
 #include "calibrate.h"
 #include "command.h"
 #include "rotoscan/pipeline/accuracy.h"
+#include "rotoscan/sim/scene.h"
+#include "rotoscan/sim/simulate.h"
 
 namespace rotoscan::cli {
 
@@ -21,7 +23,49 @@ struct BenchCommandOptions {
   int board_poses = 0;  // in that mode: add a hand-held checkerboard bundle of that many poses
   std::string target = "object";  // in that mode: object (the paper's) | board (the demo's table board)
   int calibration_steps = 0;      // in that mode: table angles per placement (0: 9 object, 16 board)
+  std::vector<std::string> scenes;  // accuracy --scene: line centres on these scenes instead of the plane
 };
+
+// bench accuracy --scene FILE...: each scene rendered (--steps table steps over the whole turn) and its
+// line centres compared with the truth (issue 15's figures on the webcam scenes): lit rows found, rows
+// more than 1 px from the true centre, RMS of the others.
+int RunBenchSceneAccuracy(const BenchCommandOptions& o, const Context& context) {
+  const std::filesystem::path work =
+      std::filesystem::temp_directory_path() / ("rotoscan-bench-scene-" + std::to_string(::getpid()));
+  int code = kExitOk;
+  for (const std::string& file : o.scenes) {
+    auto scene = sim::LoadScene(file);
+    if (!scene.ok()) {
+      code = ReportStatus(context, "bench", scene.status());
+      break;
+    }
+    sim::SimulateOptions options;
+    options.out = work / "scene";
+    options.steps = o.steps;
+    options.overwrite = true;
+    scene->rig.step_angle_rad = 2.0 * 3.14159265358979323846 / o.steps;  // spread over the whole turn
+    Status status = sim::Simulate(*scene, options, context.progress);
+    if (!status.ok()) {
+      code = ReportStatus(context, "bench", status);
+      break;
+    }
+    auto a = pipeline::MeasureLineAccuracy(options.out, laser::ExtractOptions{}, 0, 1.0, context.progress);
+    if (!a.ok()) {
+      code = ReportStatus(context, "bench", a.status());
+      break;
+    }
+    const double lit = static_cast<double>(std::max<size_t>(1, a->truth_rows));
+    char buffer[512];
+    std::snprintf(buffer, sizeof(buffer),
+                  "scene=%s frames=%zu lit rows=%zu found=%.2f %% over 1 px=%.3f %% rms=%.3f px mean=%+.3f px\n",
+                  file.c_str(), a->frames, a->truth_rows, 100.0 * (lit - a->missed) / lit,
+                  100.0 * a->outliers / lit, a->rms_px(), a->mean_px());
+    *context.out << buffer;
+  }
+  std::error_code ec;
+  std::filesystem::remove_all(work, ec);
+  return code;
+}
 
 // bench accuracy --calib: the plane test with rigs calibrated from rendered calibration bundles (--target
 // object | board) with distortion on: the three steps against the joint refinement (and the true rig).
@@ -135,13 +179,23 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
       ->capture_default_str();
   sub->add_option("--calib-steps", o.calibration_steps,
                   "accuracy --calib: table angles per calibration placement (default 9 object, 16 board)");
+  sub->add_option("--scene", o.scenes,
+                  "accuracy: line centres against the truth on these scene files (e.g. data/scenes/"
+                  "glossy-webcam.json), --steps table steps over the whole turn, instead of the plane test");
   sub->add_option("--board-poses", o.board_poses,
                   "accuracy --calib: also calibrate from a hand-held checkerboard bundle of this many poses "
                   "(joint refinement only: it fixes the distortion)")
       ->capture_default_str();
   sub->callback([&context, exit_code] {
     if (o.what == "accuracy") {
-      *exit_code = o.calib ? RunBenchCalibratedAccuracy(o, context) : RunBenchAccuracy(o, context);
+      if (!o.scenes.empty() && o.steps < 1) {
+        *context.err << "rotoscan bench: --steps must be >= 1\n";
+        *exit_code = kExitUsage;
+        return;
+      }
+      *exit_code = o.calib              ? RunBenchCalibratedAccuracy(o, context)
+                   : !o.scenes.empty() ? RunBenchSceneAccuracy(o, context)
+                                       : RunBenchAccuracy(o, context);
       return;
     }
     if (o.what == "extract" || o.what == "render") {

@@ -5,15 +5,40 @@
 // buffer lives in the extractor), the rows a few ahead prefetched so that memory and work overlap:
 //  1. d[i] = max(on[i] - off[i], 0) on the laser channel (differential imaging, paper §3.1), 16 pixels
 //     per SSE2 instruction, and the bit mask of d >= T per 64-pixel group, groups without a bit dropped.
+//     A pixel saturated in the laser-on frame over an off pixel with headroom (off <= 255 - T) counts as
+//     255 whatever its difference: on real webcam frames the on frame saturates over a bright texel and
+//     the difference dips inside the line (DESIGN.md, the real row `146 145 53 164 44`), which split
+//     the line into pieces that failed the width test, so that a weak candidate 8-16 px away won
+//     (issue 15). A run holding such pixels then gives them all its plateau (the highest true difference
+//     among them) before it is measured (step 3), so the notch is filled and the plateau stays flat.
 //  2. No bit in the row: no laser (the common case for rows above and below the object: it costs only
 //     step 1, which runs at the memory-bandwidth bound, laser_bench BM_RowPassOnly).
 //  3. Otherwise the candidates are the runs of set bits. For each run: its peak p, the half-maximum extent
 //     [a, b] around the peak (vector scans), the width at half maximum (edges interpolated linearly), and
 //     whether the laser-off frame is saturated under it (a specular highlight that hides the laser).
+//     Runs within kMergeGapPx of the previous candidate's half-maximum extent join it (a dark speckle
+//     grain or a noise dip inside one line).
 //  4. Candidates narrower than min_width (glints, hot pixels) or wider than max_width (ambient blobs) are
 //     dropped. Of the others the highest peak wins; a rival within multiple_peak_ratio of it flags the row
 //     (kFlagMultiplePeaks), and then the one nearer the previous row's point wins (lines are continuous).
+//     The winner is never much weaker (below multiple_peak_ratio) than a rejected candidate unless that
+//     one was too narrow (a hot pixel, a glint's core: kFlagStrongerRejected); a much stronger one that
+//     was too wide or hidden under a saturated off pixel may be the laser, so the row gets no point
+//     (stats.stronger_rejected) rather than a stray one (RealFramesTest.NeverAWeakCandidate...).
 //  5. The sub-pixel centre of the winner, by the chosen estimator.
+//
+// Uncertainty (LinePoint::uncertainty_px, about two standard errors). The centre of mass of a profile of
+// width W (px at half maximum) and peak P over noise sigma_n moves by sigma_n / P * sqrt(W / 12) from the
+// noise; a multiplicative speckle field of contrast C and grain g px moves it by about C sqrt(g W / 12),
+// which for the speckle of our presets and of real webcams (C ~ 0.3, g ~ 1-3 px) is ~0.08 sqrt(W)
+// (kSpeckleTerm2); and a lopsided profile (texture across the line, a glint's lobe, an edge) shows as the
+// distance between the centre of mass and the middle of the half-maximum extent, which enters whole.
+// u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2). The quality is divided by 1 + u^2, so that the points
+// of lowest quality are those with the largest expected errors (RenderedLineTest.WebcamQuality...). The
+// along-line smoothing moves a point by at most u, and not at all where saturation begins or ends
+// between neighbouring rows or where the profile is lopsided (its asymmetry over a quarter of W): there
+// the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
+// 1-2 px from their own centres).
 //
 // Estimators and the saturated plateau. Real lines are 7-16 px wide and flat-topped (the on-frame clips
 // at 255), so any estimator that reads only the brightest pixel and its two neighbours is biased toward
@@ -104,6 +129,14 @@ namespace {
 // The level 0.15 as the exact fraction kComLevelNum / kComScale.
 constexpr int kComScale = 20;
 constexpr int kComLevelNum = 3;
+
+// Runs whose half-maximum extents are at most this far apart are one candidate (step 3).
+constexpr int kMergeGapPx = 2;
+// The speckle's share of a point's variance per pixel of line width, px^2 (Uncertainty, design notes).
+constexpr double kSpeckleTerm2 = 0.08 * 0.08;
+// Internal flag of a point whose profile is lopsided (its centre of mass more than a quarter of its
+// width from the middle of its half-maximum extent): cleared before the points are returned.
+constexpr uint8_t kFlagLopsided = 0x80;
 
 struct Candidate {
   int peak_pos = 0;  // first pixel at the peak value
@@ -667,20 +700,25 @@ __attribute__((target("ssse3"))) void ChannelRowSsse3(const uint8_t* src, int pi
 // Step 1 of the row pass (see ExtractRows) over the row's whole 64-pixel groups, 32 pixels per
 // instruction; returns the number of groups pushed and where it stopped.
 __attribute__((target("avx2"))) inline uint64_t HalfGroupAvx2(const uint8_t* a, const uint8_t* b, uint8_t* d,
-                                                              __m256i t) {
-  const __m256i v = _mm256_subs_epu8(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(a)),
-                                     _mm256_loadu_si256(reinterpret_cast<const __m256i*>(b)));
+                                                              __m256i t, __m256i headroom) {
+  const __m256i va = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(a));
+  const __m256i vb = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(b));
+  // A saturated laser-on pixel over an off pixel with headroom counts as 255 (step 1).
+  const __m256i saturated = _mm256_and_si256(_mm256_cmpeq_epi8(va, _mm256_set1_epi8(-1)),
+                                             _mm256_cmpeq_epi8(_mm256_max_epu8(vb, headroom), headroom));
+  const __m256i v = _mm256_or_si256(_mm256_subs_epu8(va, vb), saturated);
   _mm256_storeu_si256(reinterpret_cast<__m256i*>(d), v);
   return static_cast<uint32_t>(_mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(v, t), v)));
 }
 __attribute__((target("avx2"))) int RowGroupsAvx2(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols,
                                                   int threshold, int* starts, uint64_t* masks, int* next) {
   const __m256i t = _mm256_set1_epi8(static_cast<char>(threshold));
+  const __m256i headroom = _mm256_set1_epi8(static_cast<char>(255 - threshold));
   int count = 0;
   int i0 = 0;
   for (; i0 + 64 <= cols; i0 += 64) {
-    const uint64_t mask =
-        HalfGroupAvx2(a + i0, b + i0, d + i0, t) | HalfGroupAvx2(a + i0 + 32, b + i0 + 32, d + i0 + 32, t) << 32;
+    const uint64_t mask = HalfGroupAvx2(a + i0, b + i0, d + i0, t, headroom) |
+                          HalfGroupAvx2(a + i0 + 32, b + i0 + 32, d + i0 + 32, t, headroom) << 32;
     starts[count] = i0;
     masks[count] = mask;
     count += mask != 0;
@@ -907,9 +945,13 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
 #endif
 #if defined(__SSE2__)
       const __m128i t = _mm_set1_epi8(static_cast<char>(threshold));
+      const __m128i headroom = _mm_set1_epi8(static_cast<char>(255 - threshold));
       auto block = [&](int at) -> uint64_t {
-        const __m128i v = _mm_subs_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a + at)),
-                                        _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + at)));
+        const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + at));
+        const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + at));
+        const __m128i saturated = _mm_and_si128(_mm_cmpeq_epi8(va, _mm_set1_epi8(-1)),
+                                                _mm_cmpeq_epi8(_mm_max_epu8(vb, headroom), headroom));
+        const __m128i v = _mm_or_si128(_mm_subs_epu8(va, vb), saturated);
         _mm_storeu_si128(reinterpret_cast<__m128i*>(d + at), v);
         return static_cast<uint32_t>(_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(v, t), v)));
       };
@@ -932,7 +974,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
         uint64_t mask = 0;
         for (int k = 0; k < 16 && i0 + k < cols; ++k) {
           const uint8_t x = a[i0 + k], y = b[i0 + k];
-          d[i0 + k] = static_cast<uint8_t>(x > y ? x - y : 0);
+          d[i0 + k] = static_cast<uint8_t>(x == 255 && y <= 255 - threshold ? 255 : x > y ? x - y : 0);
           mask |= static_cast<uint64_t>(d[i0 + k] >= threshold) << k;
         }
         push(i0, mask);
@@ -947,7 +989,20 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     auto add_run = [&](int run_first, int run_last) __attribute__((always_inline)) {
       if (count >= static_cast<int>(candidates.size())) return;
       Candidate& c = candidates[static_cast<size_t>(count)];
-      const PeakInRun found = FindPeak(d, run_first, run_last);
+      PeakInRun found = FindPeak(d, run_first, run_last);
+      if (found.value == 255) {
+        // Saturated laser-on pixels were set to 255 by step 1 (a notch cannot split the line); their
+        // difference is clipped, so they all take the run's highest true difference among them, the
+        // plateau a saturated line has (DESIGN.md), and the candidate is measured on that.
+        int plateau = 0;
+        for (int i = run_first; i <= run_last; ++i) {
+          if (a[i] == 255) plateau = std::max(plateau, 255 - b[i]);
+        }
+        for (int i = run_first; i <= run_last; ++i) {
+          if (a[i] == 255 && b[i] <= 255 - threshold) d[i] = static_cast<uint8_t>(plateau);
+        }
+        found = FindPeak(d, run_first, run_last);
+      }
       c.peak_pos = found.position;
       c.peak = found.value;
       // The half-maximum extent: d >= peak / 2, i.e. d >= ceil(peak / 2) for integers.
@@ -980,10 +1035,24 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
       c.width_den = 2 * dl * dr;
       c.width_num = (hi - lo + 2) * c.width_den - (nl2 * dr + nr2 * dl);
       c.off_saturated = b[c.peak_pos] >= o.off_saturation_dn;
-      // A run inside the half-maximum extent of the previous candidate is the same line (a noise dip).
-      if (count > 0 && candidates[static_cast<size_t>(count - 1)].last >= lo) {
+      // A run inside, or within kMergeGapPx of, the half-maximum extent of the previous candidate is the
+      // same line (a noise dip, a dark speckle grain): one candidate over both extents.
+      if (count > 0 && candidates[static_cast<size_t>(count - 1)].last + kMergeGapPx >= lo) {
         Candidate& prev = candidates[static_cast<size_t>(count - 1)];
-        if (c.peak > prev.peak) prev = c;
+        if (prev.last >= lo && hi <= prev.last) {  // wholly inside: the higher peak's candidate
+          if (c.peak > prev.peak) prev = c;
+          return;
+        }
+        const Candidate higher = c.peak > prev.peak ? c : prev;
+        const int first = std::min(prev.first, lo), last = std::max(prev.last, hi);
+        const int com_first = std::min(prev.com_first, c.com_first), com_last = std::max(prev.com_last, c.com_last);
+        prev = higher;
+        prev.first = first;
+        prev.last = last;
+        prev.com_first = com_first;
+        prev.com_last = com_last;
+        prev.width_num = last - first + 1;
+        prev.width_den = 1;
         return;
       }
       ++count;
@@ -1008,10 +1077,11 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     add_run(run_start, run_last);
 
     // Step 4: plausibility.
-    int best = -1;
+    int best = -1, strongest = 0;
     bool any_off_saturated = false;
     for (int k = 0; k < count; ++k) {
       const Candidate& c = candidates[static_cast<size_t>(k)];
+      if (c.peak > candidates[static_cast<size_t>(strongest)].peak) strongest = k;
       if (c.off_saturated) {
         any_off_saturated = true;
         continue;
@@ -1028,6 +1098,21 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
       continue;
     }
     uint8_t flags = 0;
+    {
+      // A much stronger candidate (the best below multiple_peak_ratio of it) was rejected. Only one
+      // reason lets the weaker one stand: the stronger is narrower than min_width (a hot pixel, a glint's
+      // core), flagged. Wider than max_width or hidden under a saturated laser-off pixel, it may be the
+      // laser itself: the row gets no point rather than a stray one (ExtractTest.NeverAWeakCandidate...).
+      const Candidate& s = candidates[static_cast<size_t>(strongest)];
+      if (strongest != best && candidates[static_cast<size_t>(best)].peak < o.multiple_peak_ratio * s.peak) {
+        if (!s.off_saturated && s.width_num < o.min_width_px * s.width_den) {
+          flags |= kFlagStrongerRejected;
+        } else {
+          ++stats.stronger_rejected;
+          continue;
+        }
+      }
+    }
     const bool continuous = previous_column >= 0 && r - previous_row <= 2;
     for (int k = 0; k < count; ++k) {
       const Candidate& c = candidates[static_cast<size_t>(k)];
@@ -1053,21 +1138,53 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
       ++stats.bad_width;
       continue;
     }
-    if (a[c.peak_pos] == 255) flags |= kFlagSaturated;
+    if (a[c.peak_pos] == 255) {
+      flags |= kFlagSaturated;
+      // A notch: a saturated pixel of the line whose own difference is below half the line's best.
+      int best_difference = 0, worst_saturated = 255;
+      for (int i = c.first; i <= c.last; ++i) {
+        const int x = a[i] > b[i] ? a[i] - b[i] : 0;
+        best_difference = std::max(best_difference, x);
+        if (a[i] == 255) worst_saturated = std::min(worst_saturated, x);
+      }
+      if (2 * worst_saturated < best_difference) flags |= kFlagNotched;
+    }
     if (c.first == 0 || c.last == cols - 1) flags |= kFlagClipped;
+    const double width = c.Width();
+    // Uncertainty (see the design notes): noise, speckle and the profile's asymmetry.
+    const double asymmetry = column - 0.5 * (c.first + c.last);
+    const double noise_term = stats.noise_dn / c.peak * std::sqrt(width * (1.0 / 12.0));
+    // Texture across the line: the laser's reflection is weighed by the albedo, which the laser-off frame
+    // shows; an albedo that differs between the line's two halves pulls the centre towards the brighter
+    // one, by up to a quarter of the width for a step across the middle.
+    double texture_term = 0.0;
+    {
+      const int middle = static_cast<int>(column + 0.5);
+      int left = 0, right = 0;
+      for (int i = c.com_first; i < middle; ++i) left += b[i];
+      for (int i = middle + 1; i <= c.com_last; ++i) right += b[i];
+      const int nl = std::max(1, middle - c.com_first), nr = std::max(1, c.com_last - middle);
+      const double ml = static_cast<double>(left) / nl, mr = static_cast<double>(right) / nr;
+      texture_term = 0.25 * width * std::abs(ml - mr) / std::max(1.0, ml + mr);
+    }
+    const double uncertainty = 2.0 * std::sqrt(noise_term * noise_term + kSpeckleTerm2 * width +
+                                               asymmetry * asymmetry + texture_term * texture_term);
     double quality = 1.0;
     if (stats.noise_dn > 0) quality *= std::min(1.0, c.peak * quality_per_snr);
     quality *= std::min(1.0, (c.peak - 0.5 * threshold) * quality_per_contrast);
-    const double width = c.Width();
     if (width < narrow_width || width > wide_width) quality *= 0.6;
     if (flags & kFlagMultiplePeaks) quality *= 0.5;
     if (flags & kFlagClipped) quality *= 0.3;
+    if (flags & kFlagStrongerRejected) quality *= 0.5;
+    quality /= 1.0 + uncertainty * uncertainty;
     LinePoint p;
     p.row = r;
     p.column = static_cast<float>(column);
     p.peak = static_cast<float>(c.peak);
     p.width = static_cast<float>(width);
     p.quality = static_cast<float>(std::clamp(quality, 0.0, 1.0));
+    p.uncertainty_px = static_cast<float>(uncertainty);
+    if (std::abs(asymmetry) > 0.25 * width) flags |= kFlagLopsided;
     p.flags = flags;
     line->points.push_back(p);
     ++stats.found;
@@ -1075,10 +1192,57 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     previous_column = column;
     previous_row = r;
   }
-  if (o.smooth_half_rows > 0) {
-    SmoothAlongLine(&line->points, o.smooth_half_rows, o.smooth_order, o.smooth_max_jump_px,
-                    o.smooth_outlier_px, &raw_columns_);
+  {
+    // A steep line (a surface seen at a grazing angle: the line runs along the rows) has a poorly defined
+    // centre per row: an error of the profile along the row is the slope times one across it. The
+    // uncertainty grows by sqrt(1 + slope^2), the slope from the neighbouring rows' centres.
+    std::vector<LinePoint>& points = line->points;
+    const size_t n = points.size();
+    float before = 0.0f;
+    for (size_t i = 0; i < n; ++i) {
+      const LinePoint& p = points[i];
+      const bool up = i > 0 && points[i - 1].row + 1 == p.row;
+      const bool down = i + 1 < n && points[i + 1].row == p.row + 1;
+      const float here = p.column;
+      float slope = 0.0f;
+      if (up && down) {
+        slope = 0.5f * (points[i + 1].column - before);
+      } else if (up) {
+        slope = here - before;
+      } else if (down) {
+        slope = points[i + 1].column - here;
+      }
+      before = here;
+      const float grow = 1.0f + slope * slope;
+      points[i].uncertainty_px *= std::sqrt(grow);
+      points[i].quality /= grow;
+    }
   }
+  if (o.smooth_half_rows > 0) {
+    std::vector<LinePoint>& points = line->points;
+    const size_t n = points.size();
+    row_columns_.resize(n);
+    for (size_t i = 0; i < n; ++i) row_columns_[i] = points[i].column;
+    SmoothAlongLine(&points, o.smooth_half_rows, o.smooth_order, o.smooth_max_jump_px, o.smooth_outlier_px,
+                    &raw_columns_);
+    // The smoothing's limits: a point moves by at most its uncertainty, and keeps its own estimate where
+    // the profile changes (saturation begins or ends, or the profile is lopsided: texture, an edge).
+    for (size_t i = 0; i < n; ++i) {
+      LinePoint& p = points[i];
+      const float own = row_columns_[i];
+      const bool saturated = (p.flags & kFlagSaturated) != 0;
+      const bool change =
+          (i > 0 && points[i - 1].row + 1 == p.row && ((points[i - 1].flags & kFlagSaturated) != 0) != saturated) ||
+          (i + 1 < n && points[i + 1].row == p.row + 1 && ((points[i + 1].flags & kFlagSaturated) != 0) != saturated) ||
+          (p.flags & kFlagLopsided) != 0;
+      if (change) {
+        p.column = own;
+        continue;
+      }
+      p.column = own + std::clamp(p.column - own, -p.uncertainty_px, p.uncertainty_px);
+    }
+  }
+  for (LinePoint& p : line->points) p.flags &= static_cast<uint8_t>(~kFlagLopsided);
   return Status::Ok();
 }
 

@@ -319,6 +319,18 @@ Eigen::Vector3f Mesh::Albedo(unsigned face, float u, float v, const Eigen::Vecto
     }
     case Pattern::kNone: break;
   }
+  if (checker_mm > 0.0) {  // the solid checker: dark cells where the cell indices' sum is odd
+    const Eigen::Vector3d p = object_from_table * point_in_table;
+    // Cell boundaries a quarter cell off the object's axes: a flat face through its origin (a plane, a
+    // box's middle) lies inside one layer of cells, not on a boundary that rounding would flip.
+    const Eigen::Vector3d q = p / checker_mm + Eigen::Vector3d::Constant(0.25);
+    const long sum = std::lround(std::floor(q.x()) + std::floor(q.y()) + std::floor(q.z()));
+    if (sum % 2 != 0) return dark_albedo * PlainAlbedo(face, u, v);
+  }
+  return PlainAlbedo(face, u, v);
+}
+
+Eigen::Vector3f Mesh::PlainAlbedo(unsigned face, float u, float v) const {
   const float w = 1.0f - u - v;
   if (!texture.empty() && !uv.empty()) {
     const Eigen::Vector2f t = w * uv[3 * face] + u * uv[3 * face + 1] + v * uv[3 * face + 2];
@@ -433,6 +445,10 @@ Result<Mesh> MakeObject(const ObjectSpec& spec, const Scene& scene) {
   }
   if (spec.has_pose) pose = spec.table_from_object;
   m.color = spec.color.cast<float>();
+  m.specular = static_cast<float>(spec.specular);
+  m.shininess = static_cast<float>(spec.shininess);
+  m.checker_mm = spec.checker_mm;
+  m.dark_albedo = static_cast<float>(spec.dark_albedo);
   m.table_from_object = pose;
   m.object_from_table = pose.inverse();
   for (Eigen::Vector3f& v : m.vertices) v = (pose * v.cast<double>()).cast<float>();

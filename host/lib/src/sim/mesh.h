@@ -23,6 +23,9 @@ struct Mesh {
   cv::Mat texture;                          // CV_32FC3, BGR albedo 0..1
   Eigen::Vector3f color{0.8f, 0.8f, 0.8f};  // uniform albedo RGB
   Pattern pattern = Pattern::kNone;
+  float specular = 0.0f, shininess = 60.0f;  // ObjectSpec's glossy lobe
+  double checker_mm = 0.0;                   // ObjectSpec's 3D checker (0: none)
+  float dark_albedo = 0.1f;
   int cols = 0, rows = 0;
   double square_mm = 0.0;
   // kCharuco: the summed-area table (CV_64FC1, (H + 1) x (W + 1), cv::integral) of the board image
@@ -41,9 +44,11 @@ struct Mesh {
   Eigen::Vector3f Albedo(unsigned face, float u, float v, const Eigen::Vector3d& point_in_table,
                          const Eigen::Vector3d& footprint_x = Eigen::Vector3d::Zero(),
                          const Eigen::Vector3d& footprint_y = Eigen::Vector3d::Zero()) const;
+  // The texture, vertex colors or `color` alone (no pattern, no checker).
+  Eigen::Vector3f PlainAlbedo(unsigned face, float u, float v) const;
   // True when Albedo is `color` everywhere (no pattern, texture or vertex colors).
   bool UniformAlbedo() const {
-    return pattern == Pattern::kNone && (texture.empty() || uv.empty()) && colors.empty();
+    return pattern == Pattern::kNone && (texture.empty() || uv.empty()) && colors.empty() && checker_mm <= 0.0;
   }
 };
 

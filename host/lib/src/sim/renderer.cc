@@ -11,6 +11,7 @@
 #include <mutex>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "mesh.h"
@@ -379,7 +380,7 @@ struct Workspace {
 // scaled to the laser's speckle contrast, mean 1, clipped at 0. Only the band of columns the line covers
 // (plus the blur's reach) gets a field: elsewhere the line is zero and speckle changes nothing, and the
 // band is typically a tenth of the image.
-void ApplySpeckle(const LaserModel& laser, uint64_t seed, cv::Mat& line, cv::Mat& scratch) {
+void ApplySpeckle(const LaserModel& laser, double pixel_size_um, uint64_t seed, cv::Mat& line, cv::Mat& scratch) {
   int first = line.cols, last = -1;
   for (int y = 0; y < line.rows; ++y) {
     const float* l = line.ptr<float>(y);
@@ -397,6 +398,20 @@ void ApplySpeckle(const LaserModel& laser, uint64_t seed, cv::Mat& line, cv::Mat
     }
   }
   if (last < first) return;  // no laser in view
+  if (laser.f_number > 0) {
+    // Fully developed speckle (renderer.h): each pixel the mean of its cells' intensity.
+    const int m = SpeckleOversampling(pixel_size_um, laser.wavelength_nm, laser.f_number);
+    const int x0 = std::max(0, first - 8), x1 = std::min(line.cols, last + 9);
+    const cv::Mat cells =
+        SpeckleIntensity(line.rows, x1 - x0, pixel_size_um, laser.wavelength_nm, laser.f_number, m, seed);
+    cv::resize(cells, scratch, cv::Size(x1 - x0, line.rows), 0, 0, cv::INTER_AREA);  // m x m box means
+    for (int y = 0; y < line.rows; ++y) {
+      const float* f = scratch.ptr<float>(y);
+      float* l = line.ptr<float>(y) + x0;
+      for (int x = 0; x < x1 - x0; ++x) l[x] *= f[x];
+    }
+    return;
+  }
   // The band is widened to at least 64 columns so that the field's standard deviation is well estimated.
   const int reach = static_cast<int>(std::ceil(4.0 * laser.speckle_size_px)) + 32;
   const int x0 = std::max(0, first - reach), x1 = std::min(line.cols, last + 1 + reach);
@@ -419,6 +434,56 @@ void ApplySpeckle(const LaserModel& laser, uint64_t seed, cv::Mat& line, cv::Mat
 }
 
 }  // namespace
+
+int SpeckleOversampling(double pixel_size_um, double wavelength_nm, double f_number) {
+  ROTOSCAN_CHECK(pixel_size_um > 0 && wavelength_nm > 0 && f_number > 0);
+  const double nyquist_um = 0.5 * wavelength_nm * 1e-3 * f_number;
+  return std::clamp(static_cast<int>(std::ceil(pixel_size_um / nyquist_um - 1e-9)), 1, 16);
+}
+
+cv::Mat SpeckleIntensity(int rows, int cols, double pixel_size_um, double wavelength_nm, double f_number,
+                         int oversampling, uint64_t seed) {
+  ROTOSCAN_CHECK(rows > 0 && cols > 0 && oversampling >= 1 && pixel_size_um > 0 && wavelength_nm > 0 &&
+                 f_number > 0);
+  const int h = rows * oversampling, w = cols * oversampling;
+  // The DFT grid: at least the image plus a margin of a few grains (the field is periodic on it, so
+  // opposite edges would otherwise be correlated), of a size the DFT handles fast.
+  const double cell_um = pixel_size_um / oversampling;
+  const double lambda_n_um = wavelength_nm * 1e-3 * f_number;
+  const int margin = static_cast<int>(std::ceil(4.0 * lambda_n_um / cell_um));
+  const int gh = cv::getOptimalDFTSize(h + margin), gw = cv::getOptimalDFTSize(w + margin);
+  // The pupil, as the coherent transfer function: spatial frequencies up to 1 / (2 wavelength N) cycles
+  // per µm, i.e. gw * cell / (2 wavelength N) bins along x (gh along y). (The incoherent cutoff 1 /
+  // (wavelength N) would make grains half as large: SpeckleTest measures the grain against 1.22 lambda N.)
+  const double fx = gw * cell_um / (2.0 * lambda_n_um), fy = gh * cell_um / (2.0 * lambda_n_um);
+  cv::Mat spectrum(gh, gw, CV_32FC2, cv::Scalar::all(0));
+  std::vector<float> deviates(static_cast<size_t>(2 * gw));
+  int64_t pupil_bins = 0;
+  for (int v = 0; v < gh; ++v) {
+    const double ky = (v <= gh / 2 ? v : v - gh) / fy;
+    if (std::abs(ky) > 1.0) continue;
+    FillNormal(seed, static_cast<uint64_t>(2 * gw) * v, deviates.data(), 2 * gw);
+    cv::Vec2f* row = spectrum.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < gw; ++u) {
+      const double kx = (u <= gw / 2 ? u : u - gw) / fx;
+      if (kx * kx + ky * ky <= 1.0) {
+        row[u] = cv::Vec2f(deviates[2 * u], deviates[2 * u + 1]);
+        ++pupil_bins;
+      }
+    }
+  }
+  cv::Mat field;
+  cv::dft(spectrum, field, cv::DFT_INVERSE | cv::DFT_COMPLEX_OUTPUT);
+  cv::Mat intensity(h, w, CV_32FC1);
+  // Mean 1: each pupil bin adds a deviate of E|X|^2 = 2 (unscaled inverse DFT), so E|field|^2 = 2 bins.
+  const float inverse_mean = 1.0f / static_cast<float>(2.0 * std::max<int64_t>(pupil_bins, 1));
+  for (int y = 0; y < h; ++y) {
+    const cv::Vec2f* f = field.ptr<cv::Vec2f>(y);
+    float* out = intensity.ptr<float>(y);
+    for (int x = 0; x < w; ++x) out[x] = (f[x][0] * f[x][0] + f[x][1] * f[x][1]) * inverse_mean;
+  }
+  return intensity;
+}
 
 cv::Mat Renderer::ApplySensor(const cv::Mat& electrons, uint64_t seed) const {
   ROTOSCAN_CHECK(electrons.type() == CV_32FC3);
@@ -512,8 +577,13 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
         // The lamp: Lambertian, unless the scene blocks it (cast and self shadows).
         const float lamp_cos = lamp_blocked ? 0.0f : std::max(0.0f, n.dot(light_f));
         const float lit = ambient_weight + diffuse_weight * lamp_cos;
+        float highlight = 0.0f;  // the glossy lobe (Blinn-Phong), white
+        if (mesh.specular > 0.0f && lamp_cos > 0.0f) {
+          const Eigen::Vector3f half = (light_f - dir.normalized()).normalized();
+          highlight = diffuse_weight * mesh.specular * std::pow(std::max(0.0f, n.dot(half)), mesh.shininess);
+        }
         cv::Vec3f& lit_pixel = lamp.ptr<cv::Vec3f>(y)[x];
-        for (int c = 0; c < 3; ++c) lit_pixel[2 - c] += lit * albedo[c];
+        for (int c = 0; c < 3; ++c) lit_pixel[2 - c] += lit * albedo[c] + highlight;
       }
       for (int k = 0; k < 2; ++k) {
         if (!want_laser[k]) continue;
@@ -528,8 +598,13 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
         if (impl_->Occluded(p, laser_origin[k], 1e-2)) continue;  // shadowed from this laser
         const double irradiance = laser.power * std::exp(-0.5 * s * s / (laser.sigma_mm * laser.sigma_mm)) *
                                   cos_incidence * 300.0 / range;
-        laser_img[k].ptr<float>(y)[x] +=
-            weight * static_cast<float>(irradiance) * albedo[0];  // red reflectance
+        double reflected = irradiance * albedo[0];  // red reflectance
+        if (mesh.specular > 0.0f) {  // the glossy lobe (Blinn-Phong), white
+          const Eigen::Vector3d half = (to_laser / range - dir.cast<double>().normalized()).normalized();
+          const double nh = std::max(0.0, nd.dot(half));
+          reflected += irradiance * mesh.specular * std::pow(nh, static_cast<double>(mesh.shininess));
+        }
+        laser_img[k].ptr<float>(y)[x] += weight * static_cast<float>(reflected);
       }
     };
     for (int first_col = 0; first_col < sample_cols; first_col += kTileWidth) {
@@ -614,11 +689,30 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
   const float laser_scale = static_cast<float>(sensor.laser_exposure_us * sensor.sensitivity_e_per_us);
   const float natural_scale = static_cast<float>(sensor.natural_exposure_us * sensor.sensitivity_e_per_us);
   // electrons = scale * (base + line * response), then blur and the sensor. ws.electrons is scratch.
+  // The ambient light of the laser and off frames, per row (renderer.h): a level of its own per frame and
+  // a flicker read out row by row.
+  const bool ambient_varies = sc.ambient_change > 0 || sc.ambient_flicker > 0;
+  std::vector<float> gains;
+  auto ambient_gains = [&](int frame) {
+    const uint64_t h = Mix64(seed ^ (0x7f4a7c159e3779b9ULL * (frame + 11)));
+    float z[2];
+    FillNormal(h, 0, z, 2);
+    const double level = std::max(0.0, 1.0 + sc.ambient_change * z[0]);
+    const double phase = static_cast<double>(h >> 11) * 0x1p-53 * 2.0 * 3.14159265358979323846;
+    const double omega = 2.0 * 3.14159265358979323846 * sc.flicker_hz * 1e-6;  // per µs
+    gains.resize(static_cast<size_t>(height));
+    for (int y = 0; y < height; ++y) {
+      gains[static_cast<size_t>(y)] = static_cast<float>(
+          level * (1.0 + sc.ambient_flicker * std::sin(phase + omega * sensor.line_time_us * y)));
+    }
+  };
   auto finish = [&](const cv::Mat& base, float scale, const cv::Mat* line, const float* response, int frame) {
     cv::Mat& electrons = ws.electrons;
     electrons.create(height, width, CV_32FC3);
     float sensor_scale = 1.0f;  // what the sensor model still has to multiply by
-    if (line == nullptr) {
+    const bool vary = ambient_varies && frame <= 2;
+    if (vary) ambient_gains(frame);
+    if (line == nullptr && !vary) {
       // The blur is linear: blurring the base and scaling in the sensor model saves a pass.
       sensor_scale = scale;
       if (sensor.blur_sigma_px > 0) {
@@ -628,15 +722,21 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
         base.copyTo(electrons);
       }
     } else {
-      const float r[3] = {scale * response[0], scale * response[1], scale * response[2]};
+      float r[3] = {0.0f, 0.0f, 0.0f};
+      if (line != nullptr) r[0] = scale * response[0], r[1] = scale * response[1], r[2] = scale * response[2];
       for (int y = 0; y < height; ++y) {
         const float* a = base.ptr<float>(y);
-        const float* l = line->ptr<float>(y);
+        const float* l = line != nullptr ? line->ptr<float>(y) : nullptr;
+        const float g = vary ? scale * gains[static_cast<size_t>(y)] : scale;
         float* e = electrons.ptr<float>(y);
+        if (l == nullptr) {
+          for (int x = 0; x < 3 * width; ++x) e[x] = g * a[x];
+          continue;
+        }
         for (int x = 0; x < width; ++x) {
-          e[3 * x + 0] = scale * a[3 * x + 0] + l[x] * r[0];
-          e[3 * x + 1] = scale * a[3 * x + 1] + l[x] * r[1];
-          e[3 * x + 2] = scale * a[3 * x + 2] + l[x] * r[2];
+          e[3 * x + 0] = g * a[3 * x + 0] + l[x] * r[0];
+          e[3 * x + 1] = g * a[3 * x + 1] + l[x] * r[1];
+          e[3 * x + 2] = g * a[3 * x + 2] + l[x] * r[2];
         }
       }
       if (sensor.blur_sigma_px > 0) {
@@ -646,13 +746,18 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
     }
     out.frames[frame] =
         SensorResponse(sensor, electrons, sensor_scale, seed ^ (0x51ed2701ULL * (frame + 1)), ws.raw);
+    if (sensor.jpeg_quality > 0 && out.frames[frame].depth() == CV_8U) {  // MJPEG: a JPEG round trip
+      std::vector<uint8_t> jpeg;
+      cv::imencode(".jpg", out.frames[frame], jpeg, {cv::IMWRITE_JPEG_QUALITY, sensor.jpeg_quality});
+      out.frames[frame] = cv::imdecode(jpeg, cv::IMREAD_COLOR);
+    }
   };
   for (int k = 0; k < 2; ++k) {
     if (!mask[k]) continue;
     const LaserModel& laser = sc.laser[k];
     cv::Mat& line = laser_img[k];
-    if (laser.speckle_contrast > 0)
-      ApplySpeckle(laser, seed ^ (0xabcdef12345ULL * (k + 1)), line, ws.speckle);
+    if (laser.speckle_contrast > 0 || laser.f_number > 0)
+      ApplySpeckle(laser, sensor.pixel_size_um, seed ^ (0xabcdef12345ULL * (k + 1)), line, ws.speckle);
     const float response[3] = {static_cast<float>(laser.response[2]), static_cast<float>(laser.response[1]),
                                static_cast<float>(laser.response[0])};  // BGR
     finish(ambient, laser_scale, &line, response, k);

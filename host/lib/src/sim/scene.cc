@@ -142,7 +142,9 @@ Status ParseCamera(const json& j, Scene* scene) {
                         "natural_exposure_us",
                         "color_matrix",
                         "noise",
-                        "supersampling"}));
+                        "supersampling",
+                        "jpeg_quality",
+                        "line_time_us"}));
   geometry::CameraModel& c = scene->rig.camera;
   SensorModel& s = scene->sensor;
   const int old_width = c.width;
@@ -175,6 +177,10 @@ Status ParseCamera(const json& j, Scene* scene) {
   RETURN_IF(r.Numbers<9>("color_matrix", -10.0, 10.0, s.color_matrix.data()));
   RETURN_IF(r.Bool("noise", &s.noise));
   RETURN_IF(r.Int("supersampling", 1, 8, &s.supersampling));
+  RETURN_IF(r.Int("jpeg_quality", 0, 100, &s.jpeg_quality));
+  if (s.jpeg_quality > 0 && s.bit_depth != 8)
+    return InvalidArgumentError("field 'camera.jpeg_quality' needs bit_depth 8 (JPEG frames are 8-bit)");
+  RETURN_IF(r.Number("line_time_us", 0.0, 1e5, &s.line_time_us));
   RETURN_IF(c.Validate().WithContext("field 'camera'"));
   // A wide or off-centre view with the default distortion has no inverse at the border (NaN rays).
   return c.CheckInvertible().WithContext("field 'camera' (hfov_deg, cx, cy, distortion)");
@@ -183,7 +189,8 @@ Status ParseCamera(const json& j, Scene* scene) {
 Status ParseLaser(const json& j, const std::string& name, Scene* scene, int index, bool* explicit_normal) {
   Reader r(j, "lasers." + name);
   RETURN_IF(r.OnlyKeys(
-      {"origin_mm", "normal", "sigma_mm", "power", "speckle_contrast", "speckle_size_px", "response"}));
+      {"origin_mm", "normal", "sigma_mm", "power", "speckle_contrast", "speckle_size_px", "response",
+       "f_number", "wavelength_nm"}));
   LaserModel& l = scene->laser[index];
   RETURN_IF(r.Vector("origin_mm", -1e4, 1e4, &l.origin_in_cam));
   RETURN_IF(r.Number("sigma_mm", 1e-3, 50.0, &l.sigma_mm));
@@ -191,6 +198,10 @@ Status ParseLaser(const json& j, const std::string& name, Scene* scene, int inde
   RETURN_IF(r.Number("speckle_contrast", 0.0, 1.0, &l.speckle_contrast));
   RETURN_IF(r.Number("speckle_size_px", 0.1, 100.0, &l.speckle_size_px));
   RETURN_IF(r.Vector("response", 0.0, 10.0, &l.response));
+  RETURN_IF(r.Number("f_number", 0.0, 64.0, &l.f_number));  // 0: the older speckle model
+  if (l.f_number > 0.0 && l.f_number < 0.5)
+    return InvalidArgumentError("field 'lasers." + name + ".f_number' must be 0 (off) or in [0.5, 64]");
+  RETURN_IF(r.Number("wavelength_nm", 200.0, 2000.0, &l.wavelength_nm));
   if (r.Get("normal") != nullptr) {
     Eigen::Vector3d n(0, 0, 0);
     RETURN_IF(r.Vector("normal", -1e6, 1e6, &n));
@@ -207,7 +218,8 @@ Status ParseObject(const json& j, std::size_t index, const fs::path& base_dir, O
   Reader r(j, path);
   RETURN_IF(r.OnlyKeys({"type", "file", "texture", "up_axis", "height_mm", "scale", "radius_mm", "segments",
                         "size_mm", "distance_mm", "angle_deg", "cols", "rows", "square_mm", "marker_mm",
-                        "dictionary", "position_mm", "rotation_deg", "color"}));
+                        "dictionary", "position_mm", "rotation_deg", "color", "specular", "shininess",
+                        "checker_mm", "dark_albedo"}));
   std::string type;
   if (r.Get("type") == nullptr) return InvalidArgumentError("missing field '" + path + ".type'");
   RETURN_IF(r.String("type", &type));
@@ -245,6 +257,10 @@ Status ParseObject(const json& j, std::size_t index, const fs::path& base_dir, O
   if (o->up_axis != "y" && o->up_axis != "z")
     return InvalidArgumentError("field '" + path + ".up_axis' must be y or z");
   RETURN_IF(r.Number("height_mm", 0.0, 1e4, &o->height_mm));
+  RETURN_IF(r.Number("specular", 0.0, 100.0, &o->specular));
+  RETURN_IF(r.Number("shininess", 1.0, 1e4, &o->shininess));
+  RETURN_IF(r.Number("checker_mm", 0.0, 1e4, &o->checker_mm));
+  RETURN_IF(r.Number("dark_albedo", 0.0, 1.0, &o->dark_albedo));
   RETURN_IF(r.Number("scale", 1e-6, 1e6, &o->scale));
   RETURN_IF(r.Number("radius_mm", 1e-3, 1e4, &o->radius_mm));
   RETURN_IF(r.Int("segments", 3, 4096, &o->segments));
@@ -318,7 +334,16 @@ Result<Scene> SceneDefaults(const std::string& preset) {
       l.speckle_contrast = 0.25;
       l.speckle_size_px = 3.0;
       l.response = {1.0, 0.12, 0.05};
+      l.f_number = 4.0;  // fully developed speckle through an f/4 pupil (renderer.h)
     }
+    // An MJPEG stream (the C270 sends 1280x960 only as MJPEG; its quality is not published: 85 is
+    // typical of UVC encoders, and blocks and ringing show at it) read out by a rolling shutter at
+    // 15 frames/s (1 / 15 s over 960 rows), under a lamp that flickers a little and an ambient level that
+    // changes between frames.
+    s.jpeg_quality = 85;
+    s.line_time_us = 69.0;
+    scene.ambient_change = 0.01;
+    scene.ambient_flicker = 0.02;
     rig.axis_point_in_cam = Eigen::Vector3d(0, 0, 280) - 40.0 * rig.axis_direction_in_cam;
     scene.ambient = 0.6;
   } else if (preset != "machine_vision") {
@@ -396,7 +421,11 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
     RETURN_IF(top.Object("light", &present));
     if (present) {
       Reader r(root["light"], "light");
-      RETURN_IF(r.OnlyKeys({"ambient", "diffuse", "direction", "shadows"}));
+      RETURN_IF(r.OnlyKeys(
+          {"ambient", "diffuse", "direction", "shadows", "ambient_change", "ambient_flicker", "flicker_hz"}));
+      RETURN_IF(r.Number("ambient_change", 0.0, 0.5, &scene.ambient_change));
+      RETURN_IF(r.Number("ambient_flicker", 0.0, 1.0, &scene.ambient_flicker));
+      RETURN_IF(r.Number("flicker_hz", 0.0, 1e4, &scene.flicker_hz));
       RETURN_IF(r.Bool("shadows", &scene.lamp_shadows));
       RETURN_IF(r.Number("ambient", 0.0, 1e4, &scene.ambient));
       RETURN_IF(r.Number("diffuse", 0.0, 1e4, &scene.diffuse));

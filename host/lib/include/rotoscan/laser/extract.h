@@ -46,6 +46,10 @@ enum LinePointFlag : uint8_t {
   kFlagSaturated = 1,      // the laser-on channel is saturated at the peak (plateau)
   kFlagMultiplePeaks = 2,  // another plausible peak was in the row; the most plausible one was kept
   kFlagClipped = 4,        // the line touches the image border
+  kFlagNotched = 8,        // saturated laser-on pixels inside the line had a low difference (a bright
+                           // background under a saturated line): counted as laser (extract.cc)
+  kFlagStrongerRejected = 16,  // a much stronger candidate in the row was rejected as too narrow (a hot
+                               // pixel or a glint's core): this weaker, plausible one was kept
 };
 
 struct LinePoint {
@@ -53,7 +57,9 @@ struct LinePoint {
   float column = 0;   // sub-pixel column of the line centre
   float peak = 0;     // peak height of the difference, DN
   float width = 0;    // full width at half maximum, px
-  float quality = 0;  // 0 (barely accepted) .. 1 (strong, clean, plausible width)
+  float quality = 0;  // 0 (barely accepted) .. 1 (strong, clean, plausible width); falls as the
+                      // uncertainty grows, so the lowest qualities have the largest errors
+  float uncertainty_px = 0;  // about two standard errors of `column` (extract.cc, "Uncertainty")
   uint8_t flags = 0;  // LinePointFlag bits
 };
 
@@ -65,6 +71,8 @@ struct LineStats {
   int bad_width = 0;        // every candidate too narrow (glint, hot pixel) or too wide (ambient blob)
   int off_saturated = 0;    // the laser-off frame is saturated under the peak: a specular highlight
   int multiple_peaks = 0;   // rows flagged kFlagMultiplePeaks (also counted in found)
+  int stronger_rejected = 0;  // rows without a point because a much stronger candidate was rejected
+                              // (too wide, or hidden by a saturated laser-off frame): see extract.cc
   double noise_dn = 0;      // background noise of the difference used for the threshold, DN (sigma)
   double threshold_dn = 0;  // detection threshold used, DN
 };
@@ -129,6 +137,7 @@ class LineExtractor {
   std::vector<int> block_starts_;      // the row's pixel groups holding a pixel >= threshold: start
   std::vector<uint64_t> block_masks_;  // and bits of d >= threshold (bit k: pixel start + k)
   std::vector<float> raw_columns_;     // along-line smoothing: the centres before smoothing
+  std::vector<float> row_columns_;     // the rows' own centres, kept for the smoothing's limits
   std::vector<cv::Mat> on_planes_, off_planes_;  // a band of color frames, split into channels
   std::vector<uint8_t> on_row_, off_row_;        // or one row's laser channel of both (extract.cc)
   cv::Mat on_bgr_, off_bgr_;                     // demosaiced Bayer frames

@@ -83,6 +83,12 @@ struct SensorModel {
   std::array<double, 9> color_matrix{1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major, linear RGB
   bool noise = true;
   int supersampling = 1;               // S x S rays per pixel
+  // Webcam effects (all off by default; the "webcam" preset turns them on, renderer.h says how each is
+  // made). JPEG quality of an MJPEG stream (each frame through OpenCV's JPEG encoder and decoder; 0 =
+  // lossless frames); rolling-shutter readout time per row (µs; 0 = global shutter): rows are exposed one
+  // after the other, so a flickering lamp (Scene::ambient_flicker) paints bands across the frame.
+  int jpeg_quality = 0;
+  double line_time_us = 0.0;
 
   // Multiplier from electrons to DN.
   double DnPerElectron() const;
@@ -96,6 +102,12 @@ struct LaserModel {
   double speckle_contrast = 0.15;    // std of the multiplicative speckle factor
   double speckle_size_px = 1.5;      // correlation length of the speckle in the image
   Eigen::Vector3d response{1.0, 0.06, 0.02};  // R G B response to the laser wavelength
+  // Speckle from physics instead of speckle_contrast/speckle_size_px: when f_number > 0 the laser image
+  // is multiplied by fully developed speckle formed through a circular pupil of this f-number at
+  // wavelength_nm (renderer.h, "Speckle"): grain radius 1.22 * wavelength * f_number in the image plane,
+  // exponential intensity statistics, contrast 1 before integration over the pixel.
+  double f_number = 0.0;
+  double wavelength_nm = 660.0;
 };
 
 enum class ObjectType { kMesh, kSphere, kCylinder, kBox, kPlane, kCheckerboard, kCalibrationObject };
@@ -118,6 +130,14 @@ struct ObjectSpec {
   Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();
   Eigen::Vector3d rotation_deg = Eigen::Vector3d::Zero();
   Eigen::Vector3d color{0.8, 0.8, 0.8};
+  // Glossy material: a Blinn-Phong specular lobe of this strength (white, added to the diffuse albedo's
+  // reflection) and exponent, for the lasers and the lamp: glints of the laser, highlights of the lamp.
+  double specular = 0.0;
+  double shininess = 60.0;
+  // Dark-and-white texture: a 3D checker of this pitch (mm, object frame; 0 = none) whose dark cells have
+  // albedo `color` * dark_albedo (a solid texture: no UVs needed, on any shape).
+  double checker_mm = 0.0;
+  double dark_albedo = 0.1;
   // Set by code (not JSON): place the object by this pose instead of position/rotation (and for the
   // plane, instead of distance/angle).
   bool has_pose = false;
@@ -139,6 +159,13 @@ struct Scene {
   double diffuse = 1.0;
   Eigen::Vector3d light_direction_in_cam = Eigen::Vector3d(0.3, -1.0, -1.0).normalized();
   bool lamp_shadows = true;
+  // Ambient light that changes between frames: each frame's ambient level is multiplied by 1 +
+  // ambient_change * (a standard normal deviate of that frame), and by 1 + ambient_flicker * sin(2 pi
+  // flicker_hz t) with t the exposure time of the row (mains-powered lamps flicker at twice the mains
+  // frequency; with a rolling shutter, SensorModel::line_time_us, the flicker varies along the frame).
+  double ambient_change = 0.0;
+  double ambient_flicker = 0.0;
+  double flicker_hz = 100.0;
   std::vector<ObjectSpec> objects;
 };
 
