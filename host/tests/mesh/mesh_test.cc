@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <map>
 #include <random>
 
 #include <opencv2/core.hpp>
@@ -27,6 +28,135 @@ ColoredPoints Sphere(int n, unsigned seed) {
     cloud.colors.push_back(d.z() > 0 ? Eigen::Vector3d(0.9, 0.1, 0.1) : Eigen::Vector3d(0.1, 0.1, 0.9));
   }
   return cloud;
+}
+
+// Signed volume of a closed, outward-oriented mesh (divergence theorem); negative if it faces inward.
+double SignedVolume(const TriangleMesh& mesh) {
+  double volume = 0;
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    volume += mesh.vertices[t[0]].dot(mesh.vertices[t[1]].cross(mesh.vertices[t[2]])) / 6.0;
+  }
+  return volume;
+}
+
+// Edges used by exactly one triangle: a closed surface has none.
+std::size_t BoundaryEdges(const TriangleMesh& mesh) {
+  std::map<std::pair<int, int>, int> count;
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    for (int c = 0; c < 3; ++c) ++count[std::minmax(t[c], t[(c + 1) % 3])];
+  }
+  std::size_t boundary = 0;
+  for (const auto& [edge, n] : count) boundary += n == 1 ? 1 : 0;
+  return boundary;
+}
+
+TEST(FusionTest, SphereIsClosedOutwardAndOnTheSurface) {
+  ColoredPoints cloud = Sphere(60000, 11);
+  cloud.views = cloud.normals;  // seen straight on
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  options.flat_bottom = false;
+  FusionSummary summary;
+  const Result<TriangleMesh> mesh = FuseSurface(cloud, options, &summary);
+  ASSERT_TRUE(mesh.ok()) << mesh.status().ToString();
+  ASSERT_EQ(mesh->vertex_colors.size(), mesh->vertices.size());
+  double sum_sq = 0, worst = 0;
+  for (std::size_t i = 0; i < mesh->vertices.size(); ++i) {
+    const Eigen::Vector3d d = mesh->vertices[i] - kCentre;
+    const double err = d.norm() - kRadius;
+    sum_sq += err * err;
+    worst = std::max(worst, std::abs(err));
+    if (d.z() > 5) {
+      EXPECT_GT(mesh->vertex_colors[i].x(), mesh->vertex_colors[i].z());
+    } else if (d.z() < -5) {
+      EXPECT_LT(mesh->vertex_colors[i].x(), mesh->vertex_colors[i].z());
+    }
+  }
+  // The sphere's curvature biases a 1 mm-voxel distance field by ~h^2 / 2R; noise-free samples.
+  EXPECT_LT(std::sqrt(sum_sq / static_cast<double>(mesh->vertices.size())), 0.05);
+  EXPECT_LT(worst, 0.2);
+  const double true_volume = 4.0 / 3.0 * 3.14159265358979 * kRadius * kRadius * kRadius;
+  EXPECT_NEAR(SignedVolume(*mesh) / true_volume, 1.0, 0.01);  // outward, closed
+  EXPECT_EQ(BoundaryEdges(*mesh), 0u);
+  EXPECT_EQ(summary.input_points, 60000u);
+  EXPECT_GT(summary.blocks, 0u);
+}
+
+TEST(FusionTest, SmallComponentsAreRemovedAndThreadsAgree) {
+  ColoredPoints cloud = Sphere(60000, 12);
+  // A speck of 300 points 30 mm beside the sphere.
+  for (int i = 0; i < 300; ++i) {
+    const Eigen::Vector3d d = Eigen::Vector3d(std::cos(i * 0.7), std::sin(i * 0.7), std::cos(i * 1.3)).normalized();
+    cloud.points.push_back(kCentre + Eigen::Vector3d(kRadius + 30, 0, 0) + 1.5 * d);
+    cloud.normals.push_back(d);
+    cloud.colors.emplace_back(0, 1, 0);
+  }
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  options.flat_bottom = false;
+  options.threads = 1;
+  const Result<TriangleMesh> one = FuseSurface(cloud, options);
+  options.threads = 2;
+  FusionSummary summary;
+  const Result<TriangleMesh> two = FuseSurface(cloud, options, &summary);
+  ASSERT_TRUE(one.ok() && two.ok());
+  EXPECT_EQ(one->triangles.size(), two->triangles.size());
+  EXPECT_GE(summary.removed_components, 1u);
+  for (const auto& v : two->vertices) EXPECT_LT((v - kCentre).norm(), kRadius + 1.0);
+  options.min_component_fraction = 0;
+  const Result<TriangleMesh> all = FuseSurface(cloud, options);
+  ASSERT_TRUE(all.ok());
+  EXPECT_GT(all->triangles.size(), two->triangles.size());
+}
+
+// An open can standing on the table (wall and lid sampled, no bottom): the flat bottom closes it.
+TEST(FusionTest, FlatBottomClosesTheCanOnTheTable) {
+  constexpr double kCanRadius = 20, kHeight = 30;
+  ColoredPoints cloud;
+  for (int i = 0; i < 400; ++i) {
+    const double a = 2 * 3.14159265358979 * i / 400;
+    const Eigen::Vector3d radial(std::cos(a), std::sin(a), 0);
+    for (double z = 0.1; z < kHeight; z += 0.25) {
+      cloud.points.push_back(kCanRadius * radial + Eigen::Vector3d(0, 0, z));
+      cloud.normals.push_back(radial);
+    }
+    for (double r = 0.25; r < kCanRadius; r += 0.25) {
+      cloud.points.push_back(r * radial + Eigen::Vector3d(0, 0, kHeight));
+      cloud.normals.push_back(Eigen::Vector3d::UnitZ());
+    }
+  }
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  const Result<TriangleMesh> closed = FuseSurface(cloud, options);
+  ASSERT_TRUE(closed.ok()) << closed.status().ToString();
+  const double volume = 3.14159265358979 * kCanRadius * kCanRadius * kHeight;
+  EXPECT_NEAR(SignedVolume(*closed) / volume, 1.0, 0.03);
+  double lowest = 1e9;
+  for (const auto& v : closed->vertices) lowest = std::min(lowest, v.z());
+  EXPECT_NEAR(lowest, 0.0, 0.3) << BoundaryEdges(*closed) << " " << SignedVolume(*closed) / volume;
+  options.flat_bottom = false;
+  const Result<TriangleMesh> open = FuseSurface(cloud, options);
+  ASSERT_TRUE(open.ok());
+  EXPECT_GT(BoundaryEdges(*open), 100u);
+}
+
+TEST(FusionTest, BadInput) {
+  FusionOptions options;
+  EXPECT_EQ(FuseSurface(Sphere(50, 3), options).status().code(), StatusCode::kInvalidArgument);
+  ColoredPoints mismatched = Sphere(500, 3);
+  mismatched.views.resize(10);
+  EXPECT_EQ(FuseSurface(mismatched, options).status().code(), StatusCode::kInvalidArgument);
+  ColoredPoints nan = Sphere(500, 3);
+  nan.points[7].x() = std::nan("");
+  EXPECT_EQ(FuseSurface(nan, options).status().code(), StatusCode::kInvalidArgument);
+  ColoredPoints far = Sphere(500, 3);
+  far.points[3].x() = 5e6;  // 5 km away: the volume would not fit
+  EXPECT_EQ(FuseSurface(far, options).status().code(), StatusCode::kInvalidArgument);
+  ColoredPoints bare = Sphere(500, 3);
+  bare.normals.clear();
+  EXPECT_EQ(FuseSurface(bare, options).status().code(), StatusCode::kInvalidArgument);
+  options.voxel_mm = 0;
+  EXPECT_EQ(FuseSurface(Sphere(500, 3), options).status().code(), StatusCode::kInvalidArgument);
 }
 
 TEST(PoissonTest, SphereIsRecoveredWithColors) {

@@ -36,6 +36,15 @@ ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud) {
     out.points.push_back(p.position_in_table.cast<double>());
     out.normals.push_back(p.normal.cast<double>());
     out.colors.emplace_back(p.color[0] / 255.0, p.color[1] / 255.0, p.color[2] / 255.0);
+    out.quality.push_back(p.quality);
+  }
+  if (cloud.scan.known) {
+    out.step_rad = cloud.scan.step_rad;
+    out.views.reserve(cloud.size());
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const Eigen::Vector3d to_camera = cloud.scan.CameraAtStep(p.step) - p.position_in_table.cast<double>();
+      out.views.push_back(to_camera.norm() > 0 ? to_camera.normalized() : Eigen::Vector3d::Zero());
+    }
   }
   return out;
 }

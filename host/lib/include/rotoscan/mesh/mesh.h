@@ -1,6 +1,8 @@
 // Meshing of a colored point cloud and a preview picture of the result.
 //
-// Surface reconstruction is screened Poisson (Kazhdan, Bolitho & Hoppe; the paper's Fig. 10c/11c used
+// The default surface is range-scan fusion (FuseSurface, fusion.cc): Curless & Levoy's volumetric method
+// (VRIP, SIGGRAPH 1996) fed by what the scanner knows of every point: the camera it was seen from, its
+// quality, and the spacing of the table steps. The alternative is screened Poisson (Kazhdan, Bolitho & Hoppe; the paper's Fig. 10c/11c used
 // MeshLab's), through Open3D, which also interpolates the vertex colors. Poisson closes every surface, so the
 // parts it invents far from any sample (the "balloon" under an open bottom) are trimmed by dropping the
 // vertices of lowest sample density. Open3D stays inside this module's .cc files: the API uses Eigen only.
@@ -25,9 +27,13 @@ struct ColoredPoints {
   std::vector<Eigen::Vector3d> points;
   std::vector<Eigen::Vector3d> normals;  // empty, or one per point
   std::vector<Eigen::Vector3d> colors;   // empty, or one per point (RGB)
+  std::vector<Eigen::Vector3d> views;    // empty, or one per point: unit, from the point toward its camera
+  std::vector<float> quality;            // empty, or one per point in 0..1
+  double step_rad = 0.0;                 // the turn between table steps (0: unknown); sets sample footprints
 };
 
-// A scan's cloud as meshing input: positions, normals (zero ones are estimated) and colors.
+// A scan's cloud as meshing input: positions, normals (zero ones are estimated), colors, quality and, when
+// the cloud knows its camera path (cloud::ScanGeometry), each point's direction to its camera.
 ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud);
 
 struct TriangleMesh {
@@ -35,6 +41,39 @@ struct TriangleMesh {
   std::vector<Eigen::Vector3d> vertex_colors;  // RGB in [0, 1]; empty if none
   std::vector<Eigen::Vector3i> triangles;      // counter-clockwise seen from outside
 };
+
+// Range-scan fusion (VRIP). Every sample adds a signed distance (positive on its camera's side) along its
+// normal to the voxels of a thin disc around it, weighted by its quality, by how squarely its camera saw the
+// surface (the cosine between normal and sensor ray) and by a lateral fall-off; the volume is a sparse set
+// of 8^3-voxel blocks. Marching cubes extracts the zero level set where every corner of a cube holds enough
+// weight (trimming), small components are dropped, and each vertex takes the voxels' blended color.
+// Two threads by default: the volume is cut into two slabs of blocks, each written by one thread.
+struct FusionOptions {
+  double voxel_mm = 0.5;             // voxel edge
+  double truncation_voxels = 2.0;    // half-width of the signed-distance band, in voxels
+  double footprint_voxels = 1.5;     // the least lateral radius of a sample, in voxels
+  double min_weight_fraction = 0.1;  // trim cubes with a corner below this x the median surface weight
+  double min_component_fraction = 0.01;  // drop components with fewer triangles than this x the total
+  bool flat_bottom = true;           // close the bottom with the table plane (z = table_z) under the object
+  double table_z = 0.0;              // mm, the table top in the table frame
+  int threads = 2;                   // 0: all cores
+  Status Check() const;
+};
+
+struct FusionSummary {
+  std::size_t input_points = 0;
+  std::size_t blocks = 0;               // allocated 8^3 blocks
+  std::size_t removed_components = 0;
+  std::size_t removed_triangles = 0;
+  double splat_seconds = 0.0;
+  double extract_seconds = 0.0;  // marching cubes, components, colors
+  double seconds = 0.0;
+};
+
+// Fused surface of `cloud`. kInvalidArgument for fewer than 100 points, inconsistent arrays, non-finite
+// points, or a cloud too large for the voxel size (more than 2^26 blocks).
+Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions& options,
+                                 FusionSummary* summary = nullptr, Progress* progress = nullptr);
 
 struct PoissonOptions {
   int depth = 9;                        // octree depth (9: ~0.3 mm cells on a 150 mm object)
