@@ -8,6 +8,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "rotoscan/mesh/report.h"
 #include "testing/testing.h"
 
 namespace rotoscan::mesh {
@@ -239,6 +240,106 @@ TEST(MeshIoTest, PlyRoundTripAndFormats) {
   EXPECT_EQ(WriteMesh(dir / "e.ply", TriangleMesh{}).code(), StatusCode::kInvalidArgument);
   EXPECT_FALSE(std::filesystem::exists(dir / "e.ply"));
   EXPECT_EQ(ReadMesh(dir / "none.ply").status().code(), StatusCode::kNotFound);
+}
+
+// Every format written by us and read back by Open3D (tinygltf for .glb, its own PLY/OBJ/STL readers).
+TEST(MeshIoTest, EveryFormatRoundTripsThroughOpen3d) {
+  rotoscan::testing::ScratchDir dir;
+  const TriangleMesh mesh = Tetrahedron();
+  for (const char* ext : {".ply", ".obj", ".stl", ".glb"}) {
+    SCOPED_TRACE(ext);
+    const std::filesystem::path path = dir / (std::string("t") + ext);
+    ASSERT_TRUE(WriteMesh(path, mesh).ok());
+    const Result<TriangleMesh> back = ReadMesh(path);
+    ASSERT_TRUE(back.ok()) << back.status().ToString();
+    ASSERT_EQ(back->triangles.size(), 4u);
+    // Every triangle comes back with its corners in order (STL repeats the vertices per face).
+    for (std::size_t t = 0; t < 4; ++t) {
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_LT((back->vertices[back->triangles[t][c]] - mesh.vertices[mesh.triangles[t][c]]).norm(), 1e-4);
+      }
+    }
+    if (std::string(ext) != ".stl") {
+      ASSERT_EQ(back->vertices.size(), 4u);
+      ASSERT_EQ(back->vertex_colors.size(), 4u);
+      for (std::size_t v = 0; v < 4; ++v) {  // the OBJ reader orders vertices by first use: match by place
+        std::size_t same = 0;
+        while (same < 3 && (mesh.vertices[same] - back->vertices[v]).norm() > 1e-4) ++same;
+        EXPECT_LT((back->vertex_colors[v] - mesh.vertex_colors[same]).norm(), 1e-2) << v;
+      }
+    }
+  }
+}
+
+TEST(MeshIoTest, GlbFollowsTheContainerLayout) {
+  const Result<std::string> glb = EncodeGlb(Tetrahedron());
+  ASSERT_TRUE(glb.ok());
+  auto u32 = [&](std::size_t at) {
+    uint32_t v = 0;
+    for (int i = 0; i < 4; ++i) v |= static_cast<uint32_t>(static_cast<unsigned char>((*glb)[at + i])) << (8 * i);
+    return v;
+  };
+  EXPECT_EQ(glb->substr(0, 4), "glTF");
+  EXPECT_EQ(u32(4), 2u);
+  EXPECT_EQ(u32(8), glb->size());
+  const uint32_t json_length = u32(12);
+  EXPECT_EQ(json_length % 4, 0u);
+  EXPECT_EQ(u32(16), 0x4E4F534Au);
+  const std::string json = glb->substr(20, json_length);
+  EXPECT_NE(json.find("\"COLOR_0\":2"), std::string::npos);
+  EXPECT_NE(json.find("\"max\":[0.00999999978,0.00999999978,0]"), std::string::npos) << json;  // x, z, -y in m
+  const uint32_t bin_length = u32(20 + json_length);
+  EXPECT_EQ(u32(24 + json_length), 0x004E4942u);
+  // Positions, normals, colors (4 x 12 bytes each) and 4 x 3 indices of 4 bytes.
+  EXPECT_EQ(bin_length, 3u * 48 + 48);
+  EXPECT_EQ(28 + json_length + bin_length, glb->size());
+  EXPECT_EQ(EncodeGlb(TriangleMesh{}).status().code(), StatusCode::kInvalidArgument);
+  TriangleMesh bad = Tetrahedron();
+  bad.triangles[0][1] = 9;
+  EXPECT_EQ(EncodeGlb(bad).status().code(), StatusCode::kInvalidArgument);
+}
+
+TEST(PreviewTest, SheetHasFourViews) {
+  ColoredPoints cloud = Sphere(20000, 6);
+  cloud.views = cloud.normals;
+  FusionOptions options;
+  options.voxel_mm = 2.0;
+  options.flat_bottom = false;
+  const Result<TriangleMesh> mesh = FuseSurface(cloud, options);
+  ASSERT_TRUE(mesh.ok());
+  PreviewOptions view;
+  view.width = 80;
+  view.height = 60;
+  for (const Result<cv::Mat>& sheet : {RenderPreviewSheet(*mesh, view), RenderPointPreviewSheet(cloud, view)}) {
+    ASSERT_TRUE(sheet.ok()) << sheet.status().ToString();
+    ASSERT_EQ(sheet->cols, 160);
+    ASSERT_EQ(sheet->rows, 120);
+    for (int i = 0; i < 4; ++i) {  // the object in the middle of every view
+      EXPECT_FALSE(sheet->at<cv::Vec3b>(30 + 60 * (i / 2), 40 + 80 * (i % 2)) == cv::Vec3b(38, 32, 30)) << i;
+    }
+  }
+}
+
+TEST(ReportTest, Base64MatchesRfc4648AndTheReportEmbedsPictures) {
+  // RFC 4648 section 10 test vectors.
+  EXPECT_EQ(Base64(""), "");
+  EXPECT_EQ(Base64("f"), "Zg==");
+  EXPECT_EQ(Base64("fo"), "Zm8=");
+  EXPECT_EQ(Base64("foo"), "Zm9v");
+  EXPECT_EQ(Base64("foob"), "Zm9vYg==");
+  EXPECT_EQ(Base64("fooba"), "Zm9vYmE=");
+  EXPECT_EQ(Base64("foobar"), "Zm9vYmFy");
+  ScanReport report;
+  report.figures.emplace_back("points <left>", "12");
+  report.pictures.push_back({"a picture", cv::Mat(8, 8, CV_8UC3, cv::Scalar(1, 2, 3)), {}});
+  report.sections.push_back({"stage", "a & b"});
+  const Result<std::string> html = ReportHtml(report);
+  ASSERT_TRUE(html.ok());
+  EXPECT_NE(html->find("points &lt;left&gt;"), std::string::npos);
+  EXPECT_NE(html->find("a &amp; b"), std::string::npos);
+  EXPECT_NE(html->find("src=\"data:image/png;base64,iVBORw0KGgo"), std::string::npos);  // the PNG signature
+  report.pictures.push_back({"empty", cv::Mat(), {}});
+  EXPECT_EQ(ReportHtml(report).status().code(), StatusCode::kInvalidArgument);
 }
 
 TEST(PreviewTest, MeshFillsTheMiddleAndLeavesTheCorners) {

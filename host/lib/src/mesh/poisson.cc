@@ -153,11 +153,15 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
 Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
   static QuietOpen3d quiet;
   const std::string ext = path.extension().string();
-  if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
-    return InvalidArgumentError("mesh file " + path.string() + ": extension must be .ply, .obj or .stl");
+  if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb") {
+    return InvalidArgumentError("mesh file " + path.string() + ": extension must be .ply, .obj, .stl or .glb");
   }
   if (mesh.vertices.empty() || mesh.triangles.empty())
     return InvalidArgumentError("refusing to write an empty mesh");
+  if (ext == ".glb") {
+    ROTOSCAN_ASSIGN_OR_RETURN(std::string bytes, EncodeGlb(mesh));
+    return WriteFileAtomically(path, bytes);
+  }
   open3d::geometry::TriangleMesh o3d = ToOpen3d(mesh);
   if (ext == ".stl") o3d.ComputeTriangleNormals();
   return WriteAtomically(path, [&](const fs::path& tmp) -> Status {
@@ -185,6 +189,9 @@ Result<TriangleMesh> ReadMesh(const fs::path& path) {
   open3d::geometry::TriangleMesh o3d;
   if (!open3d::io::ReadTriangleMesh(path.string(), o3d) || o3d.vertices_.empty()) {
     return CorruptDataError("cannot read a mesh from " + path.string());
+  }
+  if (path.extension() == ".glb" || path.extension() == ".gltf") {
+    for (Eigen::Vector3d& v : o3d.vertices_) v = Eigen::Vector3d(v.x(), -v.z(), v.y()) * 1000.0;  // metres, +Y up
   }
   for (const auto& t : o3d.triangles_) {
     if ((t.array() < 0).any() || (t.array() >= static_cast<int>(o3d.vertices_.size())).any()) {

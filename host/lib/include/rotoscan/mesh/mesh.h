@@ -93,9 +93,23 @@ struct PoissonSummary {
 Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const PoissonOptions& options,
                                         PoissonSummary* summary = nullptr, Progress* progress = nullptr);
 
-// Writes .ply (binary, vertex colors), .obj or .stl by the extension of `path`, atomically.
+// Writes .ply (binary, vertex colors), .obj (vertex colors as the common "v x y z r g b" extension), .stl
+// (binary) or .glb (glTF 2.0 binary, our own writer: metres, +Y up, vertex normals and colors) by the
+// extension of `path`, atomically.
 Status WriteMesh(const std::filesystem::path& path, const TriangleMesh& mesh);
+// Reads any of those (through Open3D); a .glb comes back in the table frame's millimetres, +Z up.
 Result<TriangleMesh> ReadMesh(const std::filesystem::path& path);
+
+// True when `path` holds a mesh rather than a bare cloud: .obj, .stl, .glb, or a .ply with faces.
+bool IsMeshFile(const std::filesystem::path& path);
+// A mesh's vertices as a cloud (color kept, normals from the faces, laser 0, step 0, quality 1), for
+// comparing a mesh with what compares clouds (pipeline/evaluate.h).
+cloud::PointCloud VerticesAsCloud(const TriangleMesh& mesh);
+
+// The bytes of a .glb file (gltf.cc). kInvalidArgument for an empty mesh or a bad index.
+Result<std::string> EncodeGlb(const TriangleMesh& mesh);
+// Unit vertex normals, area-weighted from the faces (+Z where a vertex has none).
+std::vector<Eigen::Vector3d> VertexNormals(const TriangleMesh& mesh);
 
 struct PreviewOptions {
   int width = 960;
@@ -113,6 +127,11 @@ Result<cv::Mat> RenderPreview(const TriangleMesh& mesh, const PreviewOptions& op
 
 // The same for a point cloud (splats of one pixel, nearest wins).
 Result<cv::Mat> RenderPointPreview(const ColoredPoints& cloud, const PreviewOptions& options);
+
+// Four views in a 2 x 2 sheet, each options.width x options.height, labelled: front (the camera's side at
+// table step 0, azimuth `options.azimuth_deg`), side (+90°), back (+180°) and top. A mesh, or a cloud.
+Result<cv::Mat> RenderPreviewSheet(const TriangleMesh& mesh, const PreviewOptions& options);
+Result<cv::Mat> RenderPointPreviewSheet(const ColoredPoints& cloud, const PreviewOptions& options);
 
 // Encodes `image` as PNG and writes it atomically.
 Status WritePng(const std::filesystem::path& path, const cv::Mat& image);
