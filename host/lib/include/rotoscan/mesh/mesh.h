@@ -128,8 +128,8 @@ Result<cv::Mat> RenderPreview(const TriangleMesh& mesh, const PreviewOptions& op
 // The same for a point cloud (splats of one pixel, nearest wins).
 Result<cv::Mat> RenderPointPreview(const ColoredPoints& cloud, const PreviewOptions& options);
 
-// Four views in a 2 x 2 sheet, each options.width x options.height, labelled: front (the camera's side at
-// table step 0, azimuth `options.azimuth_deg`), side (+90°), back (+180°) and top. A mesh, or a cloud.
+// Four views in a 2 x 2 sheet, each options.width x options.height, labelled: front (azimuth
+// `options.azimuth_deg`), side (+90°), back (+180°) and top. A mesh, or a cloud.
 Result<cv::Mat> RenderPreviewSheet(const TriangleMesh& mesh, const PreviewOptions& options);
 Result<cv::Mat> RenderPointPreviewSheet(const ColoredPoints& cloud, const PreviewOptions& options);
 
