@@ -2,15 +2,20 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <ostream>
+#include <tuple>
 #include <vector>
 
 #include "calibrate.h"
 #include "command.h"
+#include "rotoscan/cloud/cloud.h"
+#include "rotoscan/mesh/mesh.h"
 #include "rotoscan/pipeline/accuracy.h"
 #include "rotoscan/sim/scene.h"
 #include "rotoscan/sim/simulate.h"
+#include "rotoscan/pipeline/evaluate.h"
 
 namespace rotoscan::cli {
 
@@ -24,6 +29,10 @@ struct BenchCommandOptions {
   std::string target = "object";  // in that mode: object (the paper's) | board (the demo's table board)
   int calibration_steps = 0;      // in that mode: table angles per placement (0: 9 object, 16 board)
   std::vector<std::string> scenes;  // accuracy --scene: line centres on these scenes instead of the plane
+  std::string cloud, truth;       // mesh: the scan's cloud.ply and its bundle (with truth/)
+  int depth = 9;                  // mesh: Poisson depth
+  double voxel = 0.5;             // mesh: fusion voxel, mm
+  int threads = 2;                // mesh: threads for both
 };
 
 // bench accuracy --scene FILE...: each scene rendered (--steps table steps over the whole turn) and its
@@ -65,6 +74,76 @@ int RunBenchSceneAccuracy(const BenchCommandOptions& o, const Context& context) 
   std::error_code ec;
   std::filesystem::remove_all(work, ec);
   return code;
+}
+
+
+// bench mesh: fusion and Open3D's Poisson on the same cloud in the same run (Poisson's OpenMP threads
+// passive: main.cc), each mesh's vertices against the true surface, and the machine's load.
+int RunBenchMesh(const BenchCommandOptions& o, const Context& context) {
+  if (o.cloud.empty() || o.truth.empty()) {
+    *context.err << "rotoscan bench mesh: give --cloud CLOUD.ply --truth BUNDLE\n";
+    return kExitUsage;
+  }
+  auto fail = [&](const Status& s) { return ReportStatus(context, "bench", s); };
+  auto cloud = cloud::ReadPly(o.cloud);
+  if (!cloud.ok()) return fail(cloud.status());
+  auto truth = pipeline::LoadTruthSurface(o.truth);
+  if (!truth.ok()) return fail(truth.status());
+  auto views = pipeline::LoadEvaluationViews(o.truth);
+  if (!views.ok()) return fail(views.status());
+  const mesh::ColoredPoints points = mesh::ToColoredPoints(*cloud);
+  double load[3] = {0, 0, 0};
+  if (getloadavg(load, 3) < 0) load[0] = -1;
+  char line[512];
+  std::snprintf(line, sizeof(line), "cloud: %zu points, camera path %s; load average %.2f before\n", cloud->size(),
+                cloud->scan.known ? "known" : "unknown", load[0]);
+  *context.out << line;
+  mesh::FusionOptions fusion;
+  fusion.voxel_mm = o.voxel;
+  fusion.threads = o.threads;
+  mesh::FusionSummary fused_summary;
+  auto fused = mesh::FuseSurface(points, fusion, &fused_summary, context.progress);
+  if (!fused.ok()) return fail(fused.status());
+  mesh::PoissonOptions poisson;
+  poisson.depth = o.depth;
+  poisson.threads = o.threads;
+  mesh::PoissonSummary poisson_summary;
+  auto solved = mesh::PoissonReconstruct(points, poisson, &poisson_summary, context.progress);
+  if (!solved.ok()) return fail(solved.status());
+  if (getloadavg(load, 3) < 0) load[0] = -1;
+  std::snprintf(line, sizeof(line), "fusion %.2f s (splat %.2f, extract %.2f), Poisson %.2f s: %.1fx\n",
+                fused_summary.seconds, fused_summary.splat_seconds, fused_summary.extract_seconds,
+                poisson_summary.seconds, poisson_summary.seconds / fused_summary.seconds);
+  *context.out << line << std::flush;
+  pipeline::EvaluateOptions evaluate;
+  evaluate.threads = o.threads;
+  // Holes: the visible surface as seen from at most 100 of the table angles (all of them costs minutes).
+  pipeline::EvaluationViews some = *views;
+  if (some.cam_from_table.size() > 100) {
+    some.cam_from_table.clear();
+    const std::size_t every = (views->cam_from_table.size() + 99) / 100;
+    for (std::size_t i = 0; i < views->cam_from_table.size(); i += every) some.cam_from_table.push_back(views->cam_from_table[i]);
+  }
+  for (const auto& [name, surface, seconds] :
+       {std::make_tuple("fusion", &*fused, fused_summary.seconds),
+        std::make_tuple("poisson", &*solved, poisson_summary.seconds)}) {
+    auto report = pipeline::EvaluateCloud(mesh::VerticesAsCloud(*surface), *truth, some, evaluate, nullptr);
+    if (!report.ok()) return fail(report.status());
+    std::snprintf(line, sizeof(line),
+                  "%-8s %7.2f s  %8zu vertices %8zu triangles  to truth: median %.4f mean %.4f p95 %.4f "
+                  "max %.3f mm  holes %.4f (radius %.2f mm)\n",
+                  name, seconds, surface->vertices.size(), surface->triangles.size(), report->distance.median_mm,
+                  report->distance.mean_mm, report->distance.p95_mm, report->distance.max_mm,
+                  1.0 - report->coverage.both, report->coverage.radius_mm);
+    *context.out << line << std::flush;
+  }
+  std::snprintf(line, sizeof(line),
+                "fusion (voxel %.2f mm, %d threads) is %.1fx Poisson (depth %d, %d threads); fusion splat %.2f s, "
+                "extract %.2f s; load average %.2f after\n",
+                o.voxel, o.threads, poisson_summary.seconds / fused_summary.seconds, o.depth, o.threads,
+                fused_summary.splat_seconds, fused_summary.extract_seconds, load[0]);
+  *context.out << line;
+  return kExitOk;
 }
 
 // bench accuracy --calib: the plane test with rigs calibrated from rendered calibration bundles (--target
@@ -161,7 +240,7 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
       app.add_subcommand("bench", "Measure accuracy and speed (e.g. rotoscan bench accuracy --distance 300)");
   static BenchCommandOptions o;
   o = BenchCommandOptions{};  // Main() may run more than once in a process (tests)
-  sub->add_option("what", o.what, "accuracy | extract | render");
+  sub->add_option("what", o.what, "accuracy | mesh");
   sub->add_option("--distance", o.distances, "plane distance(s) in mm for accuracy (default 270..310)");
   sub->add_option("--steps", o.steps, "table steps rendered per distance")
       ->capture_default_str()
@@ -186,7 +265,18 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
                   "accuracy --calib: also calibrate from a hand-held checkerboard bundle of this many poses "
                   "(joint refinement only: it fixes the distortion)")
       ->capture_default_str();
+  sub->add_option("--cloud", o.cloud, "mesh: the scan's cloud.ply");
+  sub->add_option("--truth", o.truth, "mesh: the scan's bundle (with truth/)");
+  sub->add_option("--depth", o.depth, "mesh: Poisson depth")->capture_default_str()->check(CLI::Range(4, 12));
+  sub->add_option("--voxel", o.voxel, "mesh: fusion voxel, mm")->capture_default_str()->check(CLI::Range(0.05, 20.0));
+  sub->add_option("--threads", o.threads, "mesh: threads for both methods")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 256));
   sub->callback([&context, exit_code] {
+    if (o.what == "mesh") {
+      *exit_code = RunBenchMesh(o, context);
+      return;
+    }
     if (o.what == "accuracy") {
       if (!o.scenes.empty() && o.steps < 1) {
         *context.err << "rotoscan bench: --steps must be >= 1\n";
@@ -203,7 +293,7 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
                             "'" + o.what + "' (built: accuracy; speed: the Google Benchmark programs in host/bench/)");
       return;
     }
-    *context.err << "rotoscan bench: unknown benchmark '" << o.what << "' (accuracy, extract or render)\n";
+    *context.err << "rotoscan bench: unknown benchmark '" << o.what << "' (accuracy, mesh, extract or render)\n";
     *exit_code = kExitUsage;
   });
 }

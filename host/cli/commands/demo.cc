@@ -4,16 +4,20 @@
 //   2. calibrate the rig from it (camera, both laser planes, table axis: three steps + joint refinement),
 //   3. render a scan of the bundled Spot model (textured) with both lasers,
 //   4. process it with the calibration into a colored point cloud,
-//   5. mesh it (Poisson) and draw a preview picture,
-//   6. compare the cloud with the true surface.
+//   5. mesh it (range-scan fusion) and draw previews of the cloud and the mesh (front, side, back, top),
+//   6. compare the cloud and the mesh with the true surface,
+//   7. write the one-page report (report.html: the pictures and every stage's figures and time).
 // Each stage is the command of the same name run with the arguments printed, so that a person can re-run
 // any one of them by hand. Outputs go to --out; everything is replaced on a second run.
+#include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <ostream>
 #include <sstream>
 #include <vector>
 
 #include "command.h"
+#include "rotoscan/mesh/report.h"
 
 #ifndef ROTOSCAN_DATA_DIR
 #define ROTOSCAN_DATA_DIR "data"
@@ -29,8 +33,10 @@ struct DemoOptions {
 
 namespace {
 
-// Runs one stage as `rotoscan <args...>`, echoing the command line. Returns its exit code.
-int RunStage(const Context& context, const std::string& title, const std::vector<std::string>& args) {
+// Runs one stage as `rotoscan <args...>`, echoing the command line. Returns its exit code; `log` gets the
+// command line and what the stage printed, for the report.
+int RunStage(const Context& context, const std::string& title, const std::vector<std::string>& args,
+             std::string* log) {
   std::ostringstream line;
   line << "rotoscan";
   for (const auto& a : args) line << ' ' << a;
@@ -38,7 +44,11 @@ int RunStage(const Context& context, const std::string& title, const std::vector
   std::vector<const char*> argv{"rotoscan"};
   if (context.progress == nullptr) argv.push_back("--no-progress");
   for (const auto& a : args) argv.push_back(a.c_str());
-  return Main(static_cast<int>(argv.size()), argv.data(), *context.out, *context.err);
+  std::ostringstream printed;
+  const int code = Main(static_cast<int>(argv.size()), argv.data(), printed, *context.err);
+  *context.out << printed.str() << std::flush;
+  *log = "$ " + line.str() + "\n" + printed.str();
+  return code;
 }
 
 }  // namespace
@@ -70,6 +80,8 @@ int RunDemo(const DemoOptions& options, const Context& context) {
   const std::string cloud = (out / "cloud.ply").string();
   const std::string mesh = (out / "mesh.ply").string();
   const std::string preview = (out / "preview.png").string();
+  const std::string cloud_preview = (out / "cloud-preview.png").string();
+  const std::string report_path = (out / "report.html").string();
 
   struct Stage {
     std::string title;
@@ -97,13 +109,25 @@ int RunDemo(const DemoOptions& options, const Context& context) {
         std::to_string(options.steps), "--out", scan_bundle, "--overwrite"}},
       {"5/7 process the scan into a colored point cloud",
        {"process", scan_bundle, "--calib", calib, "--out", cloud}},
-      {"6/7 mesh and preview", {"mesh", cloud, "--out", mesh, "--preview", preview, "--depth", "8"}},
-      {"7/7 compare with the true surface", {"evaluate", cloud, "--truth", scan_bundle}},
+      {"6/7 mesh (range-scan fusion) and preview the cloud and the mesh",
+       {"mesh", cloud, "--out", mesh, "--preview", preview, "--cloud-preview", cloud_preview}},
+      {"7/7 compare the cloud with the true surface", {"evaluate", cloud, "--truth", scan_bundle}},
+      {"7/7 compare the mesh with the true surface", {"evaluate", mesh, "--truth", scan_bundle}},
   };
+  mesh::ScanReport report;
+  report.title = "Rotoscan demo: Spot, " + std::to_string(options.steps) + " steps";
   bool calibration_warning = false;
   fs::remove(calib, ec);  // so that a calib.yaml found after stage 3 is this run's
+  const auto demo_start = std::chrono::steady_clock::now();
   for (const Stage& stage : stages) {
-    const int code = RunStage(context, stage.title, stage.args);
+    std::string log;
+    const auto stage_start = std::chrono::steady_clock::now();
+    const int code = RunStage(context, stage.title, stage.args, &log);
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - stage_start).count();
+    char took[64];
+    std::snprintf(took, sizeof(took), "%.1f s", seconds);
+    report.figures.emplace_back(stage.title, took);
+    report.sections.push_back({stage.title + " (" + took + ")", log});
     if (code == kExitFailure && stage.args.front() == "calibrate" && fs::exists(calib)) {
       // The calibration was written but did not pass its checks (the report above says why): go on with
       // it, as a person would to see what it gives, and say so at the end.
@@ -122,8 +146,19 @@ int RunDemo(const DemoOptions& options, const Context& context) {
   if (calibration_warning) {
     *context.out << "\nnote: the calibration did not pass all its checks (see stage 3); the scan used it anyway.\n";
   }
-  *context.out << "\nrotoscan demo: done. Point cloud " << cloud << ", mesh " << mesh << ", preview " << preview
-               << "\n";
+  char total[64];
+  std::snprintf(total, sizeof(total), "%.1f s",
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - demo_start).count());
+  report.figures.emplace_back("total", total);
+  if (calibration_warning) report.figures.emplace_back("note", "the calibration did not pass all its checks");
+  for (const auto& [caption, file] : {std::make_pair("The mesh (front, side, back, top)", preview),
+                                      std::make_pair("The colored cloud (front, side, back, top)", cloud_preview)}) {
+    if (fs::exists(file)) report.pictures.push_back({caption, cv::Mat(), file});
+  }
+  const Status written = mesh::WriteReport(report_path, report);
+  if (!written.ok()) return ReportStatus(context, "demo", written);
+  *context.out << "\nrotoscan demo: done. Point cloud " << cloud << ", mesh " << mesh << ", previews " << preview
+               << " and " << cloud_preview << "\nreport: " << report_path << "\n";
   return kExitOk;
 }
 

@@ -6,6 +6,7 @@
 #include "command.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/core/file.h"
+#include "rotoscan/mesh/mesh.h"
 #include "rotoscan/pipeline/accuracy.h"
 #include "rotoscan/pipeline/evaluate.h"
 
@@ -47,7 +48,17 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
     checked = CheckOutputPaths({{o.report, "--report"}}, {o.cloud, o.truth, o.scene});
     if (!checked.ok()) return fail(checked);
   }
-  auto cloud = cloud::ReadPly(o.cloud);
+  // A mesh is compared through its vertices: distance mesh -> truth, and coverage (truth -> mesh: the visible
+  // true surface with a vertex within the radius; the rest are the mesh's holes).
+  const bool is_mesh = mesh::IsMeshFile(o.cloud);
+  Result<cloud::PointCloud> cloud = cloud::PointCloud{};
+  if (is_mesh) {
+    auto surface = mesh::ReadMesh(o.cloud);
+    if (!surface.ok()) return fail(surface.status());
+    cloud = mesh::VerticesAsCloud(*surface);
+  } else {
+    cloud = cloud::ReadPly(o.cloud);
+  }
   if (!cloud.ok()) return fail(cloud.status());
   if (cloud->empty()) return fail(InvalidArgumentError(o.cloud + ": the cloud has no points"));
   auto truth = pipeline::LoadTruthSurface(o.truth, o.scene);
@@ -61,6 +72,12 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
     if (!written.ok()) return fail(written);
   }
   *context.out << pipeline::EvaluationSummary(*report);
+  if (is_mesh) {
+    char line[200];
+    std::snprintf(line, sizeof(line), "mesh: %zu vertices; holes: %.4f of the visible surface has no vertex within %.2f mm\n",
+                  cloud->size(), 1.0 - report->coverage.both, report->coverage.radius_mm);
+    *context.out << line;
+  }
   return kExitOk;
 }
 
@@ -69,7 +86,7 @@ void RegisterEvaluate(CLI::App& app, const Context& context, int* exit_code) {
       "evaluate", "Compare a point cloud with ground truth (distance, coverage, color error)");
   static EvaluateCommandOptions o;
   o = EvaluateCommandOptions{};  // Main() may run more than once in a process (tests)
-  sub->add_option("cloud", o.cloud, "point cloud (PLY) in the table frame");
+  sub->add_option("cloud", o.cloud, "point cloud (PLY) or mesh (PLY with faces, OBJ, STL, GLB) in the table frame");
   sub->add_option("--truth", o.truth, "virtual scanner bundle with truth/ (object.ply, rig.yaml)");
   sub->add_option("--scene", o.scene,
                   "the scene JSON the bundle was rendered from: true colors from its textures (exact) "

@@ -1,4 +1,5 @@
-// rotoscan mesh: a colored point cloud (cloud.ply) to a Poisson mesh with vertex colors and a preview PNG.
+// rotoscan mesh: a colored point cloud (cloud.ply) to a mesh with vertex colors (range-scan fusion by
+// default, or Poisson) and a preview PNG.
 #include <ostream>
 
 #include "command.h"
@@ -12,6 +13,10 @@ struct MeshOptions {
   std::string cloud_path;
   std::string out_path = "mesh.ply";
   std::string preview_path;  // empty: <out without extension>.png
+  std::string cloud_preview_path;  // empty: none
+  std::string method = "fusion";
+  double voxel = 0.5;
+  bool open_bottom = false;
   int depth = 9;
   double trim = 0.02;
   int threads = 0;
@@ -21,24 +26,50 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
   std::filesystem::path preview = options.preview_path;
   if (preview.empty()) preview = std::filesystem::path(options.out_path).replace_extension(".png");
   ROTOSCAN_RETURN_IF_ERROR(mesh::CheckMeshPath(options.out_path));
-  ROTOSCAN_RETURN_IF_ERROR(
-      CheckOutputPaths({{options.out_path, "--out"}, {preview, "--preview"}}, {options.cloud_path}));
+  std::vector<OutputPath> outputs = {{options.out_path, "--out"}, {preview, "--preview"}};
+  if (!options.cloud_preview_path.empty()) outputs.push_back({options.cloud_preview_path, "--cloud-preview"});
+  ROTOSCAN_RETURN_IF_ERROR(CheckOutputPaths(outputs, {options.cloud_path}));
   ROTOSCAN_ASSIGN_OR_RETURN(cloud::PointCloud cloud, cloud::ReadPly(options.cloud_path));
-  mesh::PoissonOptions poisson;
-  poisson.depth = options.depth;
-  poisson.trim_density_quantile = options.trim;
-  poisson.threads = options.threads;
-  mesh::PoissonSummary summary;
-  ROTOSCAN_ASSIGN_OR_RETURN(
-      mesh::TriangleMesh surface,
-      mesh::PoissonReconstruct(mesh::ToColoredPoints(cloud), poisson, &summary, context.progress));
-  // The preview is drawn before anything is written: a failure leaves neither file.
-  ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat picture, mesh::RenderPreview(surface, mesh::PreviewOptions{}));
+  const mesh::ColoredPoints points = mesh::ToColoredPoints(cloud);
+  mesh::TriangleMesh surface;
+  std::string how;
+  double seconds = 0;
+  if (options.method == "poisson") {
+    mesh::PoissonOptions poisson;
+    poisson.depth = options.depth;
+    poisson.trim_density_quantile = options.trim;
+    poisson.threads = options.threads;
+    mesh::PoissonSummary summary;
+    ROTOSCAN_ASSIGN_OR_RETURN(surface, mesh::PoissonReconstruct(points, poisson, &summary, context.progress));
+    how = "Poisson depth " + std::to_string(options.depth);
+    seconds = summary.seconds;
+  } else {
+    mesh::FusionOptions fusion;
+    fusion.voxel_mm = options.voxel;
+    fusion.flat_bottom = !options.open_bottom;
+    fusion.threads = options.threads > 0 ? options.threads : 2;
+    mesh::FusionSummary summary;
+    ROTOSCAN_ASSIGN_OR_RETURN(surface, mesh::FuseSurface(points, fusion, &summary, context.progress));
+    how = "fusion, " + std::to_string(options.voxel).substr(0, 4) + " mm voxels" +
+          (cloud.scan.known ? ", camera path known" : ", camera path unknown");
+    seconds = summary.seconds;
+  }
+  // The pictures are drawn before anything is written: a failure leaves no file.
+  mesh::PreviewOptions view;
+  view.width = 480;
+  view.height = 360;
+  ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat picture, mesh::RenderPreviewSheet(surface, view));
+  cv::Mat cloud_picture;
+  if (!options.cloud_preview_path.empty()) {
+    ROTOSCAN_ASSIGN_OR_RETURN(cloud_picture, mesh::RenderPointPreviewSheet(points, view));
+  }
   ROTOSCAN_RETURN_IF_ERROR(mesh::WriteMesh(options.out_path, surface));
   ROTOSCAN_RETURN_IF_ERROR(mesh::WritePng(preview, picture));
-  *context.out << "mesh: " << summary.input_points << " points -> " << surface.vertices.size()
-               << " vertices, " << surface.triangles.size() << " triangles (depth " << options.depth << ", "
-               << summary.seconds << " s)\n"
+  if (!options.cloud_preview_path.empty()) {
+    ROTOSCAN_RETURN_IF_ERROR(mesh::WritePng(options.cloud_preview_path, cloud_picture));
+  }
+  *context.out << "mesh: " << cloud.size() << " points -> " << surface.vertices.size() << " vertices, "
+               << surface.triangles.size() << " triangles (" << how << ", " << seconds << " s)\n"
                << "wrote " << options.out_path << " and " << preview.string() << "\n";
   return Status::Ok();
 }
@@ -46,18 +77,29 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
 void RegisterMesh(CLI::App& app, const Context& context, int* exit_code) {
   auto options = std::make_shared<MeshOptions>();
   CLI::App* sub =
-      app.add_subcommand("mesh", "Mesh a colored point cloud (Poisson) and draw a preview picture");
+      app.add_subcommand("mesh", "Mesh a colored point cloud (fusion or Poisson) and draw a preview picture");
   sub->add_option("cloud", options->cloud_path, "input point cloud (PLY)")->required();
-  sub->add_option("--out", options->out_path, "output mesh: .ply (vertex colors), .obj or .stl")
+  sub->add_option("--out", options->out_path, "output mesh: .ply (vertex colors), .obj, .stl or .glb")
       ->capture_default_str();
-  sub->add_option("--preview", options->preview_path, "preview picture (PNG); default: beside the mesh");
+  sub->add_option("--preview", options->preview_path,
+                  "preview picture (PNG: front, side, back, top); default: beside the mesh");
+  sub->add_option("--cloud-preview", options->cloud_preview_path, "also the cloud's four views (PNG)");
+  sub->add_option("--method", options->method,
+                  "fusion (range-scan fusion along the sensor rays) or poisson (Open3D's screened Poisson)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"fusion", "poisson"}));
+  sub->add_option("--voxel", options->voxel, "fusion: voxel edge in mm")
+      ->capture_default_str()
+      ->check(CLI::Range(0.05, 20.0));
+  sub->add_flag("--open-bottom", options->open_bottom,
+                "fusion: leave the bottom open instead of closing it with the table plane");
   sub->add_option("--depth", options->depth, "Poisson octree depth")
       ->capture_default_str()
       ->check(CLI::Range(4, 12));
   sub->add_option("--trim", options->trim, "drop vertices below this quantile of sample density")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 0.5));
-  sub->add_option("--threads", options->threads, "threads (0: all cores)")->capture_default_str()->check(
+  sub->add_option("--threads", options->threads, "threads (0: all cores for Poisson, 2 for fusion)")->capture_default_str()->check(
       CLI::Range(0, 256));
   sub->callback([options, &context, exit_code] {
     *exit_code = ReportStatus(context, "mesh", RunMeshCommand(*options, context));

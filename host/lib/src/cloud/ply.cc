@@ -14,6 +14,8 @@
 namespace rotoscan::cloud {
 namespace {
 
+constexpr double kPi = 3.14159265358979323846;
+
 void PutU32(std::string* out, uint32_t v) {
   for (int i = 0; i < 4; ++i) out->push_back(static_cast<char>((v >> (8 * i)) & 0xFF));
 }
@@ -101,8 +103,16 @@ struct Element {
 std::string EncodePly(const PointCloud& cloud) {
   std::string out;
   out.reserve(400 + cloud.size() * 36);
+  out += "ply\nformat binary_little_endian 1.0\ncomment rotoscan cloud: x y z in mm, table frame\n";
+  if (cloud.scan.known) {
+    std::ostringstream scan;
+    scan.precision(17);
+    scan << "comment rotoscan camera_at_step0 " << cloud.scan.camera_at_step0.x() << " "
+         << cloud.scan.camera_at_step0.y() << " " << cloud.scan.camera_at_step0.z() << "\n"
+         << "comment rotoscan step_deg " << cloud.scan.step_rad * 180.0 / kPi << "\n";
+    out += scan.str();
+  }
   out +=
-      "ply\nformat binary_little_endian 1.0\ncomment rotoscan cloud: x y z in mm, table frame\n"
       "element vertex " +
       std::to_string(cloud.size()) +
       "\nproperty float x\nproperty float y\nproperty float z\n"
@@ -162,12 +172,26 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
   std::string line;
   bool binary = false, have_format = false;
   std::vector<Element> elements;
+  ScanGeometry scan;
+  bool have_camera = false, have_step = false;
   while (std::getline(header, line)) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream words(line);
     std::string keyword;
     words >> keyword;
-    if (keyword == "format") {
+    if (keyword == "comment") {
+      std::string tag, key;
+      words >> tag >> key;
+      if (tag == "rotoscan" && key == "camera_at_step0") {
+        Eigen::Vector3d c;
+        have_camera = static_cast<bool>(words >> c.x() >> c.y() >> c.z()) && c.allFinite() && c.cwiseAbs().maxCoeff() < 1e9;
+        if (have_camera) scan.camera_at_step0 = c;
+      } else if (tag == "rotoscan" && key == "step_deg") {
+        double deg = 0;
+        have_step = static_cast<bool>(words >> deg) && std::isfinite(deg) && std::abs(deg) <= 360.0;
+        if (have_step) scan.step_rad = deg * kPi / 180.0;
+      }
+    } else if (keyword == "format") {
       std::string format, version;
       words >> format >> version;
       if (format == "binary_little_endian") {
@@ -284,7 +308,18 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
     p.step = static_cast<int32_t>(Finite(get(10, 0), -2147483648.0, 2147483647.0));
     p.quality = static_cast<float>(Finite(get(11, 0), -1e30, 1e30));
   }
+  if (have_camera && have_step) {
+    scan.known = true;
+    cloud.scan = scan;
+  }
   return cloud;
+}
+
+Eigen::Vector3d ScanGeometry::CameraAtStep(int step) const {
+  const double angle = step_rad * step;
+  const double c = std::cos(angle), s = std::sin(angle);
+  return {c * camera_at_step0.x() - s * camera_at_step0.y(), s * camera_at_step0.x() + c * camera_at_step0.y(),
+          camera_at_step0.z()};
 }
 
 }  // namespace rotoscan::cloud

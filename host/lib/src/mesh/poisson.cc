@@ -37,6 +37,15 @@ ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud) {
     out.points.push_back(p.position_in_table.cast<double>());
     out.normals.push_back(p.normal.cast<double>());
     out.colors.emplace_back(p.color[0] / 255.0, p.color[1] / 255.0, p.color[2] / 255.0);
+    out.quality.push_back(p.quality);
+  }
+  if (cloud.scan.known) {
+    out.step_rad = cloud.scan.step_rad;
+    out.views.reserve(cloud.size());
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const Eigen::Vector3d to_camera = cloud.scan.CameraAtStep(p.step) - p.position_in_table.cast<double>();
+      out.views.push_back(to_camera.norm() > 0 ? to_camera.normalized() : Eigen::Vector3d::Zero());
+    }
   }
   return out;
 }
@@ -168,8 +177,8 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
 
 Status CheckMeshPath(const fs::path& path) {
   const std::string ext = path.extension().string();
-  if (ext != ".ply" && ext != ".obj" && ext != ".stl") {
-    return InvalidArgumentError("mesh file " + path.string() + ": extension must be .ply, .obj or .stl");
+  if (ext != ".ply" && ext != ".obj" && ext != ".stl" && ext != ".glb") {
+    return InvalidArgumentError("mesh file " + path.string() + ": extension must be .ply, .obj, .stl or .glb");
   }
   return Status::Ok();
 }
@@ -180,6 +189,10 @@ Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
   const std::string ext = path.extension().string();
   if (mesh.vertices.empty() || mesh.triangles.empty())
     return InvalidArgumentError("refusing to write an empty mesh");
+  if (ext == ".glb") {
+    ROTOSCAN_ASSIGN_OR_RETURN(std::string bytes, EncodeGlb(mesh));
+    return WriteFileAtomically(path, bytes);
+  }
   open3d::geometry::TriangleMesh o3d = ToOpen3d(mesh);
   if (ext == ".stl") o3d.ComputeTriangleNormals();
   return WriteAtomically(path, [&](const fs::path& tmp) -> Status {
@@ -216,6 +229,9 @@ Result<TriangleMesh> ReadMesh(const fs::path& path) {
   open3d::geometry::TriangleMesh o3d;
   if (!open3d::io::ReadTriangleMesh(path.string(), o3d) || o3d.vertices_.empty()) {
     return CorruptDataError("cannot read a mesh from " + path.string());
+  }
+  if (path.extension() == ".glb" || path.extension() == ".gltf") {
+    for (Eigen::Vector3d& v : o3d.vertices_) v = Eigen::Vector3d(v.x(), -v.z(), v.y()) * 1000.0;  // metres, +Y up
   }
   for (const auto& t : o3d.triangles_) {
     if ((t.array() < 0).any() || (t.array() >= static_cast<int>(o3d.vertices_.size())).any()) {

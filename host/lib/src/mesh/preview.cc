@@ -7,6 +7,7 @@
 #include <vector>
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rotoscan/core/file.h"
 #include "rotoscan/mesh/mesh.h"
@@ -163,6 +164,43 @@ Result<cv::Mat> RenderPointPreview(const ColoredPoints& cloud, const PreviewOpti
     image.at<cv::Vec3b>(y, x) = Shade(colored ? cloud.colors[i] : Eigen::Vector3d(0.8, 0.8, 0.8), lambert);
   }
   return image;
+}
+
+namespace {
+
+template <typename Render>
+Result<cv::Mat> Sheet(const PreviewOptions& options, Render render) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  struct View {
+    const char* name;
+    double azimuth, elevation;
+  };
+  const View views[4] = {{"front", options.azimuth_deg, options.elevation_deg},
+                         {"side", options.azimuth_deg + 90, options.elevation_deg},
+                         {"back", options.azimuth_deg + 180, options.elevation_deg},
+                         {"top", options.azimuth_deg, 89.0}};
+  cv::Mat sheet(2 * options.height, 2 * options.width, CV_8UC3);
+  for (int i = 0; i < 4; ++i) {
+    PreviewOptions one = options;
+    one.azimuth_deg = views[i].azimuth;
+    one.elevation_deg = views[i].elevation;
+    Result<cv::Mat> image = render(one);
+    if (!image.ok()) return image.status();
+    cv::putText(*image, views[i].name, cv::Point(8, 24), cv::FONT_HERSHEY_SIMPLEX, 0.7, cv::Scalar(220, 220, 220),
+                1, cv::LINE_AA);
+    image->copyTo(sheet(cv::Rect((i % 2) * options.width, (i / 2) * options.height, options.width, options.height)));
+  }
+  return sheet;
+}
+
+}  // namespace
+
+Result<cv::Mat> RenderPreviewSheet(const TriangleMesh& mesh, const PreviewOptions& options) {
+  return Sheet(options, [&](const PreviewOptions& one) { return RenderPreview(mesh, one); });
+}
+
+Result<cv::Mat> RenderPointPreviewSheet(const ColoredPoints& cloud, const PreviewOptions& options) {
+  return Sheet(options, [&](const PreviewOptions& one) { return RenderPointPreview(cloud, one); });
 }
 
 Status WritePng(const std::filesystem::path& path, const cv::Mat& image) {

@@ -174,6 +174,9 @@ DistanceStats Stats(std::vector<double> d) {
   const size_t k = std::min(d.size() - 1, static_cast<size_t>(std::ceil(0.95 * d.size())) - 1);
   std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(k), d.end());
   s.p95_mm = d[k];
+  const size_t half = (d.size() - 1) / 2;
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(half), d.end());
+  s.median_mm = d[half];
   s.max_mm = *std::max_element(d.begin(), d.end());
   return s;
 }
@@ -570,6 +573,7 @@ std::string EvaluationJson(const EvaluationReport& r) {
     return json{{"points", d.points},
                 {"rms_mm", d.rms_mm},
                 {"mean_mm", d.mean_mm},
+                {"median_mm", d.median_mm},
                 {"p95_mm", d.p95_mm},
                 {"max_mm", d.max_mm}};
   };
@@ -609,8 +613,10 @@ std::string EvaluationSummary(const EvaluationReport& r) {
   std::string out;
   std::snprintf(
       line, sizeof(line),
-      "distance: %zu points (left %zu, right %zu): rms=%.4f mm mean=%.4f mm p95=%.4f mm max=%.4f mm\n",
-      r.points, r.left_points, r.right_points, r.distance.rms_mm, r.distance.mean_mm, r.distance.p95_mm,
+      "distance: %zu points (left %zu, right %zu): rms=%.4f mm mean=%.4f mm median=%.4f mm p95=%.4f mm "
+      "max=%.4f mm\n",
+      r.points, r.left_points, r.right_points, r.distance.rms_mm, r.distance.mean_mm, r.distance.median_mm,
+      r.distance.p95_mm,
       r.distance.max_mm);
   out += line;
   const CoverageStats& c = r.coverage;

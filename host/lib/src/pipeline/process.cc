@@ -27,8 +27,42 @@ struct StepOutput {
   std::array<std::vector<cloud::CloudPoint>, 2> points;
   std::array<std::vector<int>, 2> rows;
   Eigen::Vector3f camera_in_table = Eigen::Vector3f::Zero();
+  int step = 0;
+  double table_angle_rad = 0.0;
   std::array<laser::LineStats, 2> stats;
 };
+
+// The scan's camera path (cloud::ScanGeometry) when every processed step sits at step index x one fixed
+// angle: the camera at angle 0 and the signed turn per step that reproduces each step's camera centre.
+cloud::ScanGeometry ScanGeometryOf(const geometry::Rig& rig, const std::vector<StepOutput>& outputs) {
+  cloud::ScanGeometry scan;
+  scan.camera_at_step0 = rig.WorldFromCamAtAngle(0.0) * Eigen::Vector3d::Zero();
+  double rate = 0.0;
+  bool have_rate = false;
+  for (const StepOutput& o : outputs) {
+    if (!o.done || o.step == 0) continue;
+    const double r = o.table_angle_rad / o.step;
+    if (!have_rate) {
+      rate = r;
+      have_rate = true;
+    } else if (std::abs(r - rate) * std::abs(o.step) > 1e-6) {
+      return {};  // not a uniform turn: unknown
+    }
+  }
+  if (!have_rate) return {};
+  for (const double sign : {1.0, -1.0}) {
+    scan.step_rad = sign * rate;
+    bool all = true;
+    for (const StepOutput& o : outputs) {
+      if (o.done && (scan.CameraAtStep(o.step) - o.camera_in_table.cast<double>()).norm() > 0.05) all = false;
+    }
+    if (all) {
+      scan.known = true;
+      return scan;
+    }
+  }
+  return {};  // the table axis is not the table frame's z: unknown
+}
 
 int FindRow(const std::vector<int>& rows, int row) {
   auto it = std::lower_bound(rows.begin(), rows.end(), row);
@@ -222,6 +256,8 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
       StepOutput& out = outputs[static_cast<size_t>(index)];
       const Eigen::Isometry3d world_from_cam = rig.WorldFromCamAtAngle(f.table_angle_rad);
       out.camera_in_table = (world_from_cam * Eigen::Vector3d::Zero()).cast<float>();
+      out.step = f.step;
+      out.table_angle_rad = f.table_angle_rad;
       bool failed = false;
       for (int l = 0; l < 2; ++l) {
         if (!options.use_laser[l] || f.laser[static_cast<size_t>(l)].empty()) continue;
@@ -342,6 +378,10 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
           };
           const int row = rows[k];
           Eigen::Vector3f along, across;
+          // Without both grid neighbours the normal is the direction to the camera: oriented to the
+          // sensor's side like the rest, and the best guess a single ray gives.
+          const Eigen::Vector3f to_camera = (o.camera_in_table - p).normalized();
+          pts[k].normal = to_camera;
           if (!tangent(i, row - 1, i, row + 1, &along) || !tangent(i - 1, row, i + 1, row, &across)) continue;
           Eigen::Vector3f normal = along.cross(across);
           if (normal.squaredNorm() < 1e-20f) continue;
@@ -354,6 +394,7 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
     }
   }
 
+  const cloud::ScanGeometry scan = ScanGeometryOf(rig, outputs);
   cloud::PointCloud all;
   all.points.reserve(s.points_per_laser[0] + s.points_per_laser[1]);
   for (const StepOutput& o : outputs) {
@@ -371,6 +412,7 @@ Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& s
     s.merge.disagreement = cloud::MeasureLaserDisagreement(all, options.merge_options.overlap_radius_mm);
     result.cloud = std::move(all);
   }
+  result.cloud.scan = scan;
   s.points_out = result.cloud.size();
   s.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return result;

@@ -1,7 +1,8 @@
 // The colored point cloud of a scan and its file, cloud.ply (DESIGN.md "Files"): binary little-endian
 // PLY, one vertex per point with x y z (float, mm, table frame), nx ny nz (float, unit, zero when
 // unknown), red green blue (uchar), laser (uchar: 0 left, 1 right), step (int: table step index) and
-// quality (float, 0..1).
+// quality (float, 0..1). Two optional header comments say where the camera was (ScanGeometry):
+// `comment rotoscan camera_at_step0 X Y Z` (mm, table frame) and `comment rotoscan step_deg S`.
 //
 // The reader is hardened (STYLE.md §9): every count read from the file is bounded by the bytes that are
 // really there before anything is allocated, a truncated or malformed file is kCorruptData naming the
@@ -29,8 +30,19 @@ struct CloudPoint {
   float quality = 0;                                            // 0..1
 };
 
+// Where the camera was when each point was seen: the table frame's z is the rotation axis, so the camera
+// at table step s is `camera_at_step0` turned by s * step_rad about z (a point's sensor ray runs from it to
+// the camera). Meshing weights and orients by it; unknown for clouds from other tools.
+struct ScanGeometry {
+  bool known = false;
+  Eigen::Vector3d camera_at_step0 = Eigen::Vector3d::Zero();  // mm, table frame
+  double step_rad = 0.0;                                      // signed turn per step index
+  Eigen::Vector3d CameraAtStep(int step) const;
+};
+
 struct PointCloud {
   std::vector<CloudPoint> points;
+  ScanGeometry scan;
   size_t size() const { return points.size(); }
   bool empty() const { return points.empty(); }
 };

@@ -1,6 +1,8 @@
 // Meshing of a colored point cloud and a preview picture of the result.
 //
-// Surface reconstruction is screened Poisson (Kazhdan, Bolitho & Hoppe; the paper's Fig. 10c/11c used
+// The default surface is range-scan fusion (FuseSurface, fusion.cc): Curless & Levoy's volumetric method
+// (VRIP, SIGGRAPH 1996) fed by what the scanner knows of every point: the camera it was seen from, its
+// quality, and the spacing of the table steps. The alternative is screened Poisson (Kazhdan, Bolitho & Hoppe; the paper's Fig. 10c/11c used
 // MeshLab's), through Open3D, which also interpolates the vertex colors. Poisson closes every surface, so the
 // parts it invents far from any sample (the "balloon" under an open bottom) are trimmed by dropping the
 // vertices of lowest sample density. Open3D stays inside this module's .cc files: the API uses Eigen only.
@@ -25,9 +27,13 @@ struct ColoredPoints {
   std::vector<Eigen::Vector3d> points;
   std::vector<Eigen::Vector3d> normals;  // empty, or one per point
   std::vector<Eigen::Vector3d> colors;   // empty, or one per point (RGB)
+  std::vector<Eigen::Vector3d> views;    // empty, or one per point: unit, from the point toward its camera
+  std::vector<float> quality;            // empty, or one per point in 0..1
+  double step_rad = 0.0;                 // the turn between table steps (0: unknown); sets sample footprints
 };
 
-// A scan's cloud as meshing input: positions, normals (zero ones are estimated) and colors.
+// A scan's cloud as meshing input: positions, normals (zero ones are estimated), colors, quality and, when
+// the cloud knows its camera path (cloud::ScanGeometry), each point's direction to its camera.
 ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud);
 
 struct TriangleMesh {
@@ -35,6 +41,39 @@ struct TriangleMesh {
   std::vector<Eigen::Vector3d> vertex_colors;  // RGB in [0, 1]; empty if none
   std::vector<Eigen::Vector3i> triangles;      // counter-clockwise seen from outside
 };
+
+// Range-scan fusion (VRIP). Every sample adds a signed distance (positive on its camera's side) along its
+// normal to the voxels of a thin disc around it, weighted by its quality, by how squarely its camera saw the
+// surface (the cosine between normal and sensor ray) and by a lateral fall-off; the volume is a sparse set
+// of 8^3-voxel blocks. Marching cubes extracts the zero level set where every corner of a cube holds enough
+// weight (trimming), small components are dropped, and each vertex takes the voxels' blended color.
+// Two threads by default: the volume is cut into two slabs of blocks, each written by one thread.
+struct FusionOptions {
+  double voxel_mm = 0.5;             // voxel edge
+  double truncation_voxels = 2.0;    // half-width of the signed-distance band, in voxels
+  double footprint_voxels = 1.5;     // the least lateral radius of a sample, in voxels
+  double min_weight_fraction = 0.1;  // trim cubes with a corner below this x the median surface weight
+  double min_component_fraction = 0.01;  // drop components with fewer triangles than this x the total
+  bool flat_bottom = true;           // close the bottom with the table plane (z = table_z) under the object
+  double table_z = 0.0;              // mm, the table top in the table frame
+  int threads = 2;                   // 0: all cores
+  Status Check() const;
+};
+
+struct FusionSummary {
+  std::size_t input_points = 0;
+  std::size_t blocks = 0;               // allocated 8^3 blocks
+  std::size_t removed_components = 0;
+  std::size_t removed_triangles = 0;
+  double splat_seconds = 0.0;
+  double extract_seconds = 0.0;  // marching cubes, components, colors
+  double seconds = 0.0;
+};
+
+// Fused surface of `cloud`. kInvalidArgument for fewer than 100 points, inconsistent arrays, non-finite
+// points, or a cloud too large for the voxel size (more than 2^26 blocks).
+Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions& options,
+                                 FusionSummary* summary = nullptr, Progress* progress = nullptr);
 
 struct PoissonOptions {
   int depth = 9;                        // octree depth (9: ~0.3 mm cells on a 150 mm object)
@@ -54,11 +93,25 @@ struct PoissonSummary {
 Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const PoissonOptions& options,
                                         PoissonSummary* summary = nullptr, Progress* progress = nullptr);
 
-// Writes .ply (binary, vertex colors), .obj or .stl by the extension of `path`, atomically.
-// kInvalidArgument unless `path` ends in .ply, .obj or .stl (checked before any work).
+// kInvalidArgument unless `path` ends in .ply, .obj, .stl or .glb (checked before any work).
 Status CheckMeshPath(const std::filesystem::path& path);
+// Writes .ply (binary, vertex colors), .obj (vertex colors as the common "v x y z r g b" extension), .stl
+// (binary) or .glb (glTF 2.0 binary, our own writer: metres, +Y up, vertex normals and colors) by the
+// extension of `path`, atomically.
 Status WriteMesh(const std::filesystem::path& path, const TriangleMesh& mesh);
+// Reads any of those (through Open3D); a .glb comes back in the table frame's millimetres, +Z up.
 Result<TriangleMesh> ReadMesh(const std::filesystem::path& path);
+
+// True when `path` holds a mesh rather than a bare cloud: .obj, .stl, .glb, or a .ply with faces.
+bool IsMeshFile(const std::filesystem::path& path);
+// A mesh's vertices as a cloud (color kept, normals from the faces, laser 0, step 0, quality 1), for
+// comparing a mesh with what compares clouds (pipeline/evaluate.h).
+cloud::PointCloud VerticesAsCloud(const TriangleMesh& mesh);
+
+// The bytes of a .glb file (gltf.cc). kInvalidArgument for an empty mesh or a bad index.
+Result<std::string> EncodeGlb(const TriangleMesh& mesh);
+// Unit vertex normals, area-weighted from the faces (+Z where a vertex has none).
+std::vector<Eigen::Vector3d> VertexNormals(const TriangleMesh& mesh);
 
 struct PreviewOptions {
   int width = 960;
@@ -76,6 +129,11 @@ Result<cv::Mat> RenderPreview(const TriangleMesh& mesh, const PreviewOptions& op
 
 // The same for a point cloud (splats of one pixel, nearest wins).
 Result<cv::Mat> RenderPointPreview(const ColoredPoints& cloud, const PreviewOptions& options);
+
+// Four views in a 2 x 2 sheet, each options.width x options.height, labelled: front (azimuth
+// `options.azimuth_deg`), side (+90°), back (+180°) and top. A mesh, or a cloud.
+Result<cv::Mat> RenderPreviewSheet(const TriangleMesh& mesh, const PreviewOptions& options);
+Result<cv::Mat> RenderPointPreviewSheet(const ColoredPoints& cloud, const PreviewOptions& options);
 
 // Encodes `image` as PNG and writes it atomically.
 Status WritePng(const std::filesystem::path& path, const cv::Mat& image);

@@ -77,7 +77,7 @@ struct EvaluateOptions {
 
 struct DistanceStats {
   size_t points = 0;
-  double rms_mm = 0, mean_mm = 0, p95_mm = 0, max_mm = 0;
+  double rms_mm = 0, mean_mm = 0, median_mm = 0, p95_mm = 0, max_mm = 0;
 };
 
 struct CoverageStats {
