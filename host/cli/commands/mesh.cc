@@ -23,6 +23,9 @@ struct MeshOptions {
 };
 
 Status RunMeshCommand(const MeshOptions& options, const Context& context) {
+  // Every option is checked before any work, whichever method uses it (NaN passes CLI11's range check).
+  if (!(options.trim >= 0.0 && options.trim <= 0.5))
+    return InvalidArgumentError("--trim must be in [0, 0.5], got " + std::to_string(options.trim));
   std::filesystem::path preview = options.preview_path;
   if (preview.empty()) preview = std::filesystem::path(options.out_path).replace_extension(".png");
   ROTOSCAN_RETURN_IF_ERROR(mesh::CheckMeshPath(options.out_path));

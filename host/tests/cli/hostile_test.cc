@@ -145,8 +145,8 @@ TEST_F(HostileTest, FullDiskFailsAndKeepsThePreviousFile) {
   WriteText(dir_ / "mesh.png", "previous preview");
   std::string err;
   const int code = rotoscan::testing::RunProgram(
-      {ROTOSCAN_CLI_PATH, "--no-progress", "mesh", Shared("cloud.ply").string(), "--out", P("mesh.ply"), "--depth",
-       "5", "--threads", "1"},
+      {ROTOSCAN_CLI_PATH, "--no-progress", "mesh", Shared("cloud.ply").string(), "--out", P("mesh.ply"), "--method",
+       "poisson", "--depth", "5", "--threads", "1"},
       20000, /*kill_at_limit=*/false, &err);
   EXPECT_EQ(code, kExitFailure) << err;
   EXPECT_NE(err.find("mesh.ply"), std::string::npos) << err;

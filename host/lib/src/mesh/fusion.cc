@@ -233,6 +233,7 @@ Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions
     return InvalidArgumentError("point cloud arrays differ in length (points, normals, colors, views, quality)");
   }
   if (!std::isfinite(cloud.step_rad)) return InvalidArgumentError("step angle must be finite");
+  ROTOSCAN_RETURN_IF_ERROR(CheckCloudExtent(cloud));
   ProgressScope scope(progress, "mesh", 3);
   const auto start = std::chrono::steady_clock::now();
   const int threads = options.threads > 0

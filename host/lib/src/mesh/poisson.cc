@@ -76,17 +76,8 @@ struct QuietOpen3d {
 
 }  // namespace
 
-Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const PoissonOptions& options,
-                                        PoissonSummary* summary, Progress* progress) {
-  static QuietOpen3d quiet;
-  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+Status CheckCloudExtent(const ColoredPoints& cloud) {
   const std::size_t n = cloud.points.size();
-  if (n < 100)
-    return InvalidArgumentError("Poisson meshing needs at least 100 points, got " + std::to_string(n));
-  if ((!cloud.normals.empty() && cloud.normals.size() != n) ||
-      (!cloud.colors.empty() && cloud.colors.size() != n)) {
-    return InvalidArgumentError("point cloud arrays differ in length (points, normals, colors)");
-  }
   Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   Eigen::Vector3d high = -low;
   for (const auto& p : cloud.points) {
@@ -94,7 +85,7 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
     low = low.cwiseMin(p);
     high = high.cwiseMax(p);
   }
-  // Open3D's Poisson divides by the cloud's extent: a cloud without one (identical points, or points apart
+  // Open3D's Poisson divides by the cloud's extent (and fusion's volume is sized from it): a cloud without one (identical points, or points apart
   // only at denormal scale) crashes it, and a cloud flat along an axis gives a surface of absurd size.
   const Eigen::Vector3d extent = high - low;
   const double largest = extent.maxCoeff();
@@ -106,8 +97,30 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
   Eigen::Index flat_axis = 0;
   if (!(extent.minCoeff(&flat_axis) > 1e-6 * largest)) {
     return InvalidArgumentError(std::string("the cloud is flat: its points all lie in one plane along ") +
-                                "xyz"[flat_axis] + " (Poisson meshing needs a surface around a volume)");
+                                "xyz"[flat_axis] + " (meshing needs a surface around a volume)");
   }
+  return Status::Ok();
+}
+
+Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const PoissonOptions& options,
+                                        PoissonSummary* summary, Progress* progress) {
+  static QuietOpen3d quiet;
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  const std::size_t n = cloud.points.size();
+  if (n < 100)
+    return InvalidArgumentError("Poisson meshing needs at least 100 points, got " + std::to_string(n));
+  if ((!cloud.normals.empty() && cloud.normals.size() != n) ||
+      (!cloud.colors.empty() && cloud.colors.size() != n)) {
+    return InvalidArgumentError("point cloud arrays differ in length (points, normals, colors)");
+  }
+  ROTOSCAN_RETURN_IF_ERROR(CheckCloudExtent(cloud));
+  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d high = -low;
+  for (const auto& p : cloud.points) {
+    low = low.cwiseMin(p);
+    high = high.cwiseMax(p);
+  }
+  const double largest = (high - low).maxCoeff();
   ProgressScope scope(progress, "mesh", 3);
   const auto start = std::chrono::steady_clock::now();
 

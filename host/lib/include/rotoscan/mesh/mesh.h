@@ -90,6 +90,11 @@ struct PoissonSummary {
 };
 
 // Poisson surface of `cloud`. kInvalidArgument for fewer than 100 points or inconsistent arrays.
+// kInvalidArgument for a cloud no mesher can use: a non-finite point, no extent (identical points, or
+// points apart only at denormal scale: Open3D's Poisson crashes on it), or all points in one plane.
+// PoissonReconstruct and FuseSurface call it first.
+Status CheckCloudExtent(const ColoredPoints& cloud);
+
 Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const PoissonOptions& options,
                                         PoissonSummary* summary = nullptr, Progress* progress = nullptr);
 
