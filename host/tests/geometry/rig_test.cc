@@ -65,6 +65,27 @@ TEST(RigTest, ReadErrorsNameTheProblem) {
   EXPECT_NE(s.message().find("'K'"), std::string::npos) << s.ToString();
 }
 
+// Found by the calib.yaml fuzzer: a matrix declaring billions of rows made OpenCV allocate them before it
+// read the data (16 GB). The declared size is now bounded first, and the error names the key.
+TEST(RigTest, MatrixDeclaringHugeRowsIsRefusedBeforeAllocating) {
+  ScratchDir dir;
+  ASSERT_TRUE(WriteRigYaml(dir / "calib.yaml", ExampleRig()).ok());
+  const Result<std::string> text = ReadFile(dir / "calib.yaml");
+  ASSERT_TRUE(text.ok());
+  const std::size_t key = text->find("distortion:");
+  ASSERT_NE(key, std::string::npos);
+  const std::size_t rows = text->find("rows: ", key);
+  ASSERT_NE(rows, std::string::npos);
+  for (const std::string declared : {"2000000000", "&", "-3"}) {
+    std::string bad = *text;
+    bad.replace(rows + 6, bad.find('\n', rows) - (rows + 6), declared);
+    ASSERT_TRUE(WriteFileAtomically(dir / "bad.yaml", bad).ok());
+    const Status s = ReadRigYaml(dir / "bad.yaml").status();
+    EXPECT_EQ(s.code(), StatusCode::kInvalidArgument) << declared << ": " << s.ToString();
+    EXPECT_NE(s.message().find("distortion"), std::string::npos) << s.ToString();
+  }
+}
+
 TEST(RigTest, InvalidRigIsNotWritten) {
   ScratchDir dir;
   Rig rig = ExampleRig();

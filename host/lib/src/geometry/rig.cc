@@ -48,6 +48,16 @@ Result<cv::Mat> ReadVector(const cv::FileNode& root, const char* key, int n) {
   if (node.empty()) return InvalidArgumentError(std::string("missing key '") + key + "'");
   cv::Mat m;
   try {
+    // OpenCV allocates rows x cols as declared before it reads the data: bound them first (a fuzzed
+    // 'rows' made it allocate 16 GB). Every matrix here is a small vector.
+    if (node.isMap()) {
+      const cv::FileNode rows = node["rows"], cols = node["cols"];
+      if (!rows.isInt() || !cols.isInt() || static_cast<int>(rows) < 1 || static_cast<int>(cols) < 1 ||
+          static_cast<int>(rows) > n || static_cast<int>(cols) > n) {
+        return InvalidArgumentError(std::string("key '") + key + "' must be a matrix of " + std::to_string(n) +
+                                    " numbers (its rows and cols are missing, not integers or too large)");
+      }
+    }
     node >> m;
   } catch (const cv::Exception& e) {
     return InvalidArgumentError(std::string("key '") + key + "' is not a matrix: " + e.msg);
