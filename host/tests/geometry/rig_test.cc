@@ -86,6 +86,20 @@ TEST(RigTest, MatrixDeclaringHugeRowsIsRefusedBeforeAllocating) {
   }
 }
 
+// Found by the calib.yaml fuzzer: a key mangled to ":dt:" makes OpenCV's YAML parser throw std::length_error
+// (not a cv::Exception), which escaped the reader.
+TEST(RigTest, MangledKeyIsCorruptDataNotAnException) {
+  ScratchDir dir;
+  ASSERT_TRUE(WriteRigYaml(dir / "calib.yaml", ExampleRig()).ok());
+  Result<std::string> text = ReadFile(dir / "calib.yaml");
+  ASSERT_TRUE(text.ok());
+  const std::size_t dt = text->find("   dt: d");
+  ASSERT_NE(dt, std::string::npos);
+  text->replace(dt, 8, "   :dt: d");
+  const Result<Rig> rig = ParseRigYaml(*text, "mangled.yaml");
+  EXPECT_EQ(rig.status().code(), StatusCode::kCorruptData) << rig.status().ToString();
+}
+
 TEST(RigTest, InvalidRigIsNotWritten) {
   ScratchDir dir;
   Rig rig = ExampleRig();

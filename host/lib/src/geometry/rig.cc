@@ -178,6 +178,10 @@ Result<Rig> ParseRigYaml(const std::string& text, const std::string& name) {
     return rig;
   } catch (const cv::Exception& e) {
     return CorruptDataError(name + ": " + e.msg);
+  } catch (const std::exception& e) {
+    // OpenCV's YAML parser also lets standard exceptions out (std::length_error on a mangled key: found by
+    // the calib.yaml fuzzer).
+    return CorruptDataError(name + " is not a readable OpenCV YAML file (" + e.what() + ")");
   }
 }
 
