@@ -19,6 +19,7 @@
 #include "rotoscan/geometry/rigid.h"
 #include "rotoscan/sim/scene.h"
 #include "rotoscan/sim/simulate.h"
+#include "rig_errors.h"
 #include "testing/testing.h"
 
 namespace rotoscan::cli {
@@ -32,24 +33,10 @@ using rotoscan::testing::ScratchDir;
 // the truth).
 constexpr int kSteps = 16;
 
-double NormalErrorDeg(const geometry::Plane& a, const geometry::Plane& b) {
-  return geometry::RadToDeg(std::acos(std::min(1.0, std::abs(a.normal.dot(b.normal)))));
-}
-double OffsetErrorMm(const geometry::Plane& a, const geometry::Plane& b) {
-  return std::abs(a.Canonical().offset - b.Canonical().offset);
-}
-// Distance of the estimated axis from the true one, across the true axis, at the true axis point (the
-// middle of the working volume on the optical axis).
-double AxisDistanceMm(const geometry::Rig& estimate, const geometry::Rig& truth) {
-  const Eigen::Vector3d& a = estimate.axis_direction_in_cam;
-  const Eigen::Vector3d p = estimate.axis_point_in_cam +
-                            a * a.dot(truth.axis_point_in_cam - estimate.axis_point_in_cam);  // nearest
-  const Eigen::Vector3d off = p - truth.axis_point_in_cam;
-  return (off - truth.axis_direction_in_cam.dot(off) * truth.axis_direction_in_cam).norm();
-}
-double AxisAngleDeg(const geometry::Rig& a, const geometry::Rig& b) {
-  return geometry::RadToDeg(std::acos(std::min(1.0, a.axis_direction_in_cam.dot(b.axis_direction_in_cam))));
-}
+using rotoscan::testing::AxisAngleDeg;
+using rotoscan::testing::AxisDistanceMm;
+using rotoscan::testing::NormalErrorDeg;
+using rotoscan::testing::OffsetErrorMm;
 
 struct Rendered {
   std::vector<std::string> bundles;
