@@ -13,6 +13,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev clang libclang-rt-14-dev
   # firmware cross build and flashing
   gcc-arm-none-eabi libnewlib-arm-none-eabi dfu-util
+  # the firmware image on an emulated Cortex-M4 (issue 18), the API reference (issue 17)
+  libunicorn-dev doxygen
 )
 
 missing=()
