@@ -217,6 +217,7 @@ struct F411Emu::Impl {
   };
   std::vector<CameraEvent> camera_queue;
   std::vector<PinEdge> camera_edges;
+  std::vector<PinEdge> capture_log;  // what TIM2's channel 3 latched, and when
 
   // System control.
   uint32_t nvic_iser[3] = {0, 0, 0}, nvic_ispr[3] = {0, 0, 0};
@@ -473,6 +474,7 @@ struct F411Emu::Impl {
       if (tim2.sr & flag) tim2.sr |= 1u << (c.channel + 9);  // overcapture
       tim2.ccr[c.channel] = tim2.CountAt(c.at);
       tim2.sr |= flag;
+      capture_log.push_back(PinEdge{c.at, tim2.ccr[c.channel], kPortB, 10, c.level});
     }
     for (size_t i = 0; i < camera_queue.size();) {
       if (camera_queue[i].at > now) {
@@ -760,9 +762,11 @@ struct F411Emu::Impl {
   }
   // A write may have made an interrupt pending that preempts the code running now: stop before the next
   // instruction so that Step takes it.
+  // It may also have started a timer or moved its next event closer than the run's stop.
   void AfterWrite() {
     LatchLines();
     if (BestPending() != kNoException) stop_at = 0;
+    stop_at = std::min(stop_at, NextEvent());
   }
 
   bool ClockOn(uint32_t address, bool quiet) {
@@ -1426,6 +1430,10 @@ uint32_t F411Emu::Peek(uint32_t address) {
   return v;
 }
 
+const ElfImage& F411Emu::image() const {
+  return impl_->image;
+}
+
 dwc2_model_t* F411Emu::usb() {
   return impl_->usb_model;
 }
@@ -1448,6 +1456,9 @@ const ExceptionStats& F411Emu::exception_stats(uint32_t exception) const {
 }
 const std::vector<PinEdge>& F411Emu::camera_edges() const {
   return impl_->camera_edges;
+}
+const std::vector<PinEdge>& F411Emu::captures() const {
+  return impl_->capture_log;
 }
 
 uint32_t F411Emu::StackHighWater() {

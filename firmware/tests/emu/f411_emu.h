@@ -121,6 +121,7 @@ class F411Emu {
   uint32_t Peek(uint32_t address);
 
   dwc2_model_t* usb();
+  const ElfImage& image() const;
 
   const std::vector<PinEdge>& edges() const;
   bool PinLevel(uint8_t port, uint8_t pin) const;
@@ -135,6 +136,8 @@ class F411Emu {
   uint32_t StackHighWater();
   // The camera model's exposure edges (cycle, TIM2 count, level), when enabled.
   const std::vector<PinEdge>& camera_edges() const;
+  // Every input capture TIM2's channel 3 made: the cycle and the counter value it latched.
+  const std::vector<PinEdge>& captures() const;
 
  private:
   struct Impl;

@@ -1,0 +1,74 @@
+// The flashed firmware image (rotoscan-fw.elf) on the emulated STM32F411 (firmware/tests/emu) as a
+// VirtualBoard: what the host writes to the bulk OUT endpoint goes into the emulated OTG_FS core as OUT
+// transactions (retried while the image NAKs), what it reads comes out as IN transactions, and Advance runs
+// the emulated CPU. Boot() powers it on and enumerates it as the kernel would before libusb sees it;
+// Reenumerate() does it again after a re-plug (a self-powered board: the image keeps running).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+
+#include "elf_image.h"
+#include "emu_image.h"
+#include "f411_emu.h"
+#include "rotoscan/device/transport.h"
+#include "usb_host.h"
+
+namespace rotoscan::device::testing {
+
+class EmuBoard : public VirtualBoard {
+ public:
+  explicit EmuBoard(fw_emu::EmuOptions options = {}) : options_(std::move(options)) {}
+
+  // Loads the image, powers the chip on and enumerates it. false and *error when any of it fails.
+  bool Boot(std::string* error) {
+    fw_emu::ElfImage image;
+    if (!fw_emu::ReadElf(fw_emu::ImagePath(), &image, error)) return false;
+    emu_ = std::make_unique<fw_emu::F411Emu>(image, options_);
+    if (!emu_->ok()) return *error = emu_->error(), false;
+    emu_->PowerOn();
+    host_ = std::make_unique<fw_emu::UsbHost>(emu_.get());
+    return Reenumerate(error);
+  }
+  bool Reenumerate(std::string* error) {
+    const fw_emu::UsbHost::Enumeration e = host_->Enumerate(address_++);
+    if (!e.ok) *error = e.error;
+    return e.ok;
+  }
+
+  void Receive(const uint8_t* data, size_t size) override {
+    if (!host_->BulkOut(kEpOut, data, size)) Note("bulk OUT: " + host_->error());
+    last_out_cycle_ = emu_->cycles();
+  }
+  size_t Transmit(uint8_t* out, size_t max) override {
+    fw_emu::UsbHost::Bytes bytes;
+    if (!host_->BulkIn(kEpIn, max, &bytes)) Note("bulk IN: " + host_->error());
+    std::copy(bytes.begin(), bytes.end(), out);
+    return bytes.size();
+  }
+  void Advance(int64_t us) override {
+    if (!emu_->RunUs(static_cast<uint64_t>(us))) Note(emu_->error());
+  }
+
+  fw_emu::F411Emu& emu() { return *emu_; }
+  // The first thing that went wrong on the emulated side (empty when nothing did).
+  const std::string& error() const { return error_; }
+  // The cycle at which the last OUT transfer from the host had been taken by the image.
+  uint64_t last_out_cycle() const { return last_out_cycle_; }
+
+ private:
+  static constexpr uint8_t kEpOut = 0x01, kEpIn = 0x01;
+  void Note(const std::string& what) {
+    if (error_.empty()) error_ = what;
+  }
+  fw_emu::EmuOptions options_;
+  std::unique_ptr<fw_emu::F411Emu> emu_;
+  std::unique_ptr<fw_emu::UsbHost> host_;
+  uint8_t address_ = 5;
+  std::string error_;
+  uint64_t last_out_cycle_ = 0;
+};
+
+}  // namespace rotoscan::device::testing
