@@ -7,6 +7,11 @@
  * IN (board -> host): up to 64 bytes from fw_usb_tx per packet. When a packet was full and nothing more is
  * queued, a zero-length packet ends the transfer: a host read of more than 64 bytes would otherwise wait
  * for a short packet that never comes (USB 2.0 5.8.3).
+ * A bus reset (a re-plug of this self-powered board, or the host's reset) flushes the transmit FIFO: the
+ * packet in flight then was never acknowledged, and is sent again first once the host configures the board
+ * (found by the emulator test of issue 18: without it the events in that packet were lost). A host that
+ * did receive it before the reset sees a duplicate, which the framing's CRC and event sequence numbers
+ * reject. Bytes of an OUT packet the core had not taken yet are kept across the reset in the same way.
  */
 #include "usb_link.h"
 
@@ -43,7 +48,9 @@ static struct {
   uint16_t rx_done; /* of which fw_usb_rx took */
   bool rx_armed;
   uint8_t tx_buf[USB_LINK_PACKET];
+  uint16_t tx_len; /* bytes of the packet in tx_buf */
   bool tx_busy;
+  bool tx_resend; /* tx_buf was in flight at a bus reset: send it again before anything new */
   bool zlp_due; /* the last packet sent was full */
 } g_link;
 
@@ -64,21 +71,22 @@ static void pump_rx(void) {
 
 static void pump_tx(void) {
   if (!g_link.configured || g_link.tx_busy) return;
-  const size_t n = fw_usb_tx(g_link.tx_buf, sizeof(g_link.tx_buf));
+  const size_t n = g_link.tx_resend ? g_link.tx_len : fw_usb_tx(g_link.tx_buf, sizeof(g_link.tx_buf));
   if (n == 0u && !g_link.zlp_due) return;
   g_link.zlp_due = n == USB_LINK_PACKET;
+  g_link.tx_len = (uint16_t)n;
   g_link.tx_busy = dcd_ep_xfer(USB_LINK_EP_IN, g_link.tx_buf, (uint16_t)n);
+  if (g_link.tx_busy) g_link.tx_resend = false;
 }
 
 static void on_configured(bool configured) {
+  if (!configured && g_link.tx_busy && g_link.tx_len > 0u) g_link.tx_resend = true;
   g_link.configured = configured;
-  g_link.rx_armed = false;
-  g_link.rx_len = 0;
-  g_link.rx_done = 0;
+  g_link.rx_armed = false; /* what rx_buf holds and the core has not taken yet is kept (pump_rx) */
   g_link.tx_busy = false;
   g_link.zlp_due = false;
   if (configured) {
-    arm_rx();
+    pump_rx();
     pump_tx();
   }
 }

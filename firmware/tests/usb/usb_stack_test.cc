@@ -293,6 +293,20 @@ TEST_F(UsbStack, StandardRequestsAfterConfiguration) {
   EXPECT_EQ(Control(0xC0, USB_LINK_REQ_VERSION, 0, 0, 3).data.size(), 3u);
 }
 
+// A bus reset (a re-plug of the self-powered board) flushes the transmit FIFO: the packet that was in flight,
+// never acknowledged, is sent again once the host has configured the board again, before anything newer.
+// Found by the emulator test of issue 18 (an event lost at every re-plug).
+TEST_F(UsbStack, PacketInFlightAtABusResetIsSentAgain) {
+  Enumerate();
+  g_tx.assign({10, 11, 12, 13});
+  Service();  // the packet is in the transmit FIFO, the host has not read it
+  g_tx.assign({20, 21});
+  Enumerate();  // bus reset, enumeration, SET_CONFIGURATION 1
+  EXPECT_EQ(BulkRead(512), (Bytes{10, 11, 12, 13}));
+  Service();
+  EXPECT_EQ(BulkRead(512), (Bytes{20, 21}));
+}
+
 TEST_F(UsbStack, MalformedAndUnexpectedRequestsStall) {
   Enumerate();
   const uint32_t before = usbd_stalls();
