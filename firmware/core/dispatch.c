@@ -11,12 +11,13 @@
 #include "timebase.h"
 #include "version.h"
 
-/* The largest answer is a STATUS reply. */
-#define DISP_ANSWER_MAX (PROTO_COBS_MAX_ENCODED(PROTO_HEADER_SIZE + PROTO_STATUS_SIZE + PROTO_CRC_SIZE) + 1)
+/* The largest answer is DIAG (41 bytes), then STATUS (40). */
+#define DISP_ANSWER_PAYLOAD_MAX (PROTO_DIAG_SIZE > PROTO_STATUS_SIZE ? PROTO_DIAG_SIZE : PROTO_STATUS_SIZE)
+#define DISP_ANSWER_MAX (PROTO_COBS_MAX_ENCODED(PROTO_HEADER_SIZE + DISP_ANSWER_PAYLOAD_MAX + PROTO_CRC_SIZE) + 1)
 PROTO_STATIC_ASSERT(DISP_ANSWER_MAX <= 64, "answers stay small");
-PROTO_STATIC_ASSERT(PROTO_INFO_SIZE <= PROTO_STATUS_SIZE && PROTO_PONG_SIZE <= PROTO_STATUS_SIZE &&
-                        PROTO_ACK_SIZE <= PROTO_STATUS_SIZE,
-                    "STATUS is the largest answer");
+PROTO_STATIC_ASSERT(PROTO_INFO_SIZE <= DISP_ANSWER_PAYLOAD_MAX && PROTO_PONG_SIZE <= DISP_ANSWER_PAYLOAD_MAX &&
+                        PROTO_ACK_SIZE <= DISP_ANSWER_PAYLOAD_MAX,
+                    "DIAG or STATUS is the largest answer");
 
 typedef struct {
   bool valid;
@@ -73,6 +74,11 @@ static uint8_t check_config(const proto_config_t* c, uint8_t* field) {
   return *field == 0 ? PROTO_ST_OK : PROTO_ST_BAD_VALUE;
 }
 
+static bool diag_supported(void) {
+  hal_diag_t d;
+  return hal_diag(&d) == 0;
+}
+
 static bool moving_or_running(void) {
   return fw_move_owner() != FW_MOVE_NONE || seq_busy();
 }
@@ -90,7 +96,7 @@ static void execute(const proto_msg_t* cmd, proto_msg_t* reply, bool* abort_afte
       info->proto_minor = PROTO_VERSION_MINOR;
       info->capabilities = PROTO_CAP_STEPPER | PROTO_CAP_LASERS | PROTO_CAP_TRIGGER_OUT | PROTO_CAP_PROGRAM |
                            PROTO_CAP_LASER_SAFETY | (seq_has_exposure_input() ? PROTO_CAP_EXPOSURE_IN : 0u) |
-                           (hal_is_simulated() ? PROTO_CAP_SIMULATED : 0u);
+                           (hal_is_simulated() ? PROTO_CAP_SIMULATED : 0u) | (diag_supported() ? PROTO_CAP_DIAG : 0u);
       info->fw_major = FW_VERSION_MAJOR;
       info->fw_minor = FW_VERSION_MINOR;
       info->fw_patch = FW_VERSION_PATCH;
@@ -108,6 +114,32 @@ static void execute(const proto_msg_t* cmd, proto_msg_t* reply, bool* abort_afte
       proto_msg_init(reply, PROTO_STATUS, cmd->seq);
       fw_fill_status(&reply->body.status, PROTO_CAUSE_REPLY);
       return;
+    case PROTO_GET_DIAG: {
+      hal_diag_t d;
+      memset(&d, 0, sizeof(d));
+      if (hal_diag(&d) != 0) {
+        st = PROTO_ST_UNKNOWN_TYPE; /* as a 1.0 device answers it */
+        break;
+      }
+      proto_msg_init(reply, PROTO_DIAG, cmd->seq);
+      proto_diag_t* out = &reply->body.diag;
+      out->flags = (uint8_t)((d.cycles_valid ? PROTO_DIAG_CYCLES_VALID : 0u) | (d.fault_valid ? PROTO_DIAG_FAULT_VALID : 0u));
+      if (d.cycles_valid) {
+        out->cpu_hz = d.cpu_hz;
+        out->step_isr_cycles_max = d.step_isr_cycles_max;
+        out->step_isr_cycles_last = d.step_isr_cycles_last;
+      }
+      if (d.fault_valid) {
+        out->fault_count = d.fault_count;
+        out->fault_vector = d.fault_vector;
+        out->fault_pc = d.fault_pc;
+        out->fault_lr = d.fault_lr;
+        out->fault_psr = d.fault_psr;
+        out->fault_cfsr = d.fault_cfsr;
+        out->fault_hfsr = d.fault_hfsr;
+      }
+      return;
+    }
     case PROTO_SET_CONFIG:
       if (moving_or_running()) {
         st = PROTO_ST_BUSY;

@@ -97,6 +97,18 @@ int hal_uid(uint8_t out[12]);
 /* Whether the board is the host simulation (advertised as PROTO_CAP_SIMULATED). Context: main. Required. */
 bool hal_is_simulated(void);
 
+/* What only the port knows about itself, for GET_DIAG (protocol 1.1). */
+typedef struct {
+  bool cycles_valid;             /* the port measures its step interrupt in CPU cycles */
+  uint32_t cpu_hz;               /* the clock of those cycles */
+  uint32_t step_isr_cycles_max;  /* the worst run since power-on */
+  uint32_t step_isr_cycles_last; /* the last run */
+  bool fault_valid;              /* a fault was recorded before the last reset: the fields below */
+  uint32_t fault_count, fault_vector, fault_pc, fault_lr, fault_psr, fault_cfsr, fault_hfsr;
+} hal_diag_t;
+/* Fills *out. Context: main. Optional: -ENOSYS (then GET_DIAG is not advertised and is refused). */
+int hal_diag(hal_diag_t* out);
+
 /* Compiler barrier for the single-producer single-consumer queues shared between an interrupt and the main
  * loop (a single-core Cortex-M4 needs no hardware barrier between them). */
 #if defined(__GNUC__) || defined(__clang__)

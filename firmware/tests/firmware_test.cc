@@ -307,6 +307,22 @@ TEST(FirmwareTimebase, CountsPastTwoToThe32Microseconds) {
   EXPECT_EQ(sim_now_us(), span);
 }
 
+// ---- GET_DIAG (protocol 1.1) ----
+
+TEST(FirmwareDiag, TheSimulationAdvertisesAndAnswersGetDiag) {
+  SimDevice dev;
+  const proto_msg_t info = dev.Command(SimDevice::Make(PROTO_GET_INFO));
+  ASSERT_EQ(info.type, PROTO_INFO);
+  EXPECT_EQ(info.body.info.proto_minor, 1);
+  EXPECT_TRUE(info.body.info.capabilities & PROTO_CAP_DIAG);
+  const proto_msg_t diag = dev.Command(SimDevice::Make(PROTO_GET_DIAG));
+  ASSERT_EQ(diag.type, PROTO_DIAG);
+  // The simulation counts no CPU cycles and records no fault: it says so rather than sending zeros as data.
+  EXPECT_EQ(diag.body.diag.flags, 0);
+  EXPECT_EQ(diag.body.diag.step_isr_cycles_max, 0u);
+  EXPECT_EQ(diag.body.diag.fault_count, 0u);
+}
+
 // ---- laser safety ----
 
 TEST(FirmwareSafety, LasersGoOffWhenTheHostIsSilent) {

@@ -9,7 +9,8 @@ namespace rotoscan::firmware_test {
 namespace {
 
 bool IsAnswer(const proto_msg_t& m) {
-  if (m.type == PROTO_ACK || m.type == PROTO_NACK || m.type == PROTO_INFO || m.type == PROTO_PONG)
+  if (m.type == PROTO_ACK || m.type == PROTO_NACK || m.type == PROTO_INFO || m.type == PROTO_PONG ||
+      m.type == PROTO_DIAG)
     return true;
   return m.type == PROTO_STATUS && m.body.status.cause == PROTO_CAUSE_REPLY;
 }

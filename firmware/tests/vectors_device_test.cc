@@ -22,6 +22,7 @@ uint8_t DataReplyOf(uint8_t command) {
     case PROTO_GET_INFO: return PROTO_INFO;
     case PROTO_PING: return PROTO_PONG;
     case PROTO_GET_STATUS: return PROTO_STATUS;
+    case PROTO_GET_DIAG: return PROTO_DIAG;
     default: return 0;
   }
 }
@@ -65,7 +66,7 @@ TEST(FirmwareVectors, TheDeviceAnswersEveryGoldenFrame) {
       EXPECT_EQ(a.body.ack.acked_seq, seq);
     }
   }
-  EXPECT_EQ(checked, 25);
+  EXPECT_EQ(checked, 27);
 }
 
 }  // namespace

@@ -58,7 +58,7 @@ extern "C" {
 /* ---- Version and limits ------------------------------------------------------------------------------ */
 
 #define PROTO_VERSION_MAJOR 1 /* a change that an old peer would misread */
-#define PROTO_VERSION_MINOR 0 /* additions an old peer can ignore */
+#define PROTO_VERSION_MINOR 1 /* additions an old peer can ignore (1.1: GET_DIAG / DIAG) */
 
 #define PROTO_HEADER_SIZE 4 /* version, type, seq */
 #define PROTO_CRC_SIZE 4
@@ -87,11 +87,13 @@ enum proto_type {
   PROTO_START = 0x09,        /* -> ACK | NACK(NO_PROGRAM, BUSY, BAD_VALUE, MOTOR_DISABLED) */
   PROTO_ABORT = 0x0A,        /* -> ACK; STATUS event with cause ABORTED if something was stopped */
   PROTO_GET_STATUS = 0x0B,   /* -> STATUS with cause REPLY */
+  PROTO_GET_DIAG = 0x0C,     /* -> DIAG (protocol 1.1, PROTO_CAP_DIAG); NACK UNKNOWN_TYPE from a 1.0 device */
   /* Replies, device -> host; seq = the command's seq. */
   PROTO_ACK = 0x40,
   PROTO_NACK = 0x41,
   PROTO_INFO = 0x42,
   PROTO_PONG = 0x43,
+  PROTO_DIAG = 0x44,
   /* Events, device -> host; seq = the device's frame counter (STATUS with cause REPLY: the command's). */
   PROTO_TRIGGER_EVENT = 0x60,
   PROTO_MOVE_DONE = 0x61,
@@ -134,6 +136,7 @@ const char* proto_status_name(uint8_t status);
 #define PROTO_CAP_EXPOSURE_IN (1u << 3)  /* the camera's exposure-active line is read (exposure-seen time) */
 #define PROTO_CAP_PROGRAM (1u << 4)      /* LOAD_PROGRAM / START / ABORT */
 #define PROTO_CAP_LASER_SAFETY (1u << 5) /* lasers go off when the host is silent (SET_CONFIG timeout) */
+#define PROTO_CAP_DIAG (1u << 6)         /* GET_DIAG (protocol 1.1): interrupt cost and the last fault */
 #define PROTO_CAP_SIMULATED (1u << 31)   /* the host-built firmware (port/sim), not a real board */
 
 /* Laser mask bits. */
@@ -144,7 +147,7 @@ const char* proto_status_name(uint8_t status);
 /* ---- Payloads ---------------------------------------------------------------------------------------- */
 /* Each payload's wire size is the sum of its fields' sizes, in the order listed; the sizes are asserted. */
 
-/* GET_INFO, ABORT, GET_STATUS: no payload. */
+/* GET_INFO, ABORT, GET_STATUS, GET_DIAG: no payload. */
 
 typedef struct {       /* INFO: frozen layout across majors (new fields only at the end) */
   uint8_t proto_major; /* PROTO_VERSION_MAJOR of the device */
@@ -304,6 +307,25 @@ typedef struct {              /* STATUS */
 } proto_status_t;
 #define PROTO_STATUS_SIZE (4 + 8 + 1 + 1 + 1 + 1 + 4 + 4 + 4 + 4 + 4 + 4)
 
+/* DIAG.flags */
+#define PROTO_DIAG_CYCLES_VALID (1u << 0) /* the board counts CPU cycles: the step_isr_* fields are measured */
+#define PROTO_DIAG_FAULT_VALID (1u << 1)  /* a fault was recorded before the last reset: the fault_* fields */
+
+typedef struct {                 /* DIAG: what only the board knows about itself (answer to GET_DIAG) */
+  uint8_t flags;                 /* PROTO_DIAG_* */
+  uint32_t cpu_hz;               /* the clock the cycles are counted in (0 if not counted) */
+  uint32_t step_isr_cycles_max;  /* the step interrupt's worst run since power-on, in CPU cycles */
+  uint32_t step_isr_cycles_last; /* its last run */
+  uint32_t fault_count;          /* faults since power-on (the record survives resets, not power cycles) */
+  uint32_t fault_vector;         /* exception number of the fault (3 = HardFault, 16 + n = interrupt n) */
+  uint32_t fault_pc;             /* the stacked PC, LR and xPSR of the faulting code */
+  uint32_t fault_lr;
+  uint32_t fault_psr;
+  uint32_t fault_cfsr; /* the fault status registers (Cortex-M: CFSR, HFSR) */
+  uint32_t fault_hfsr;
+} proto_diag_t;
+#define PROTO_DIAG_SIZE (1 + 4 * 10)
+
 /* LOG.level */
 enum proto_log_level { PROTO_LOG_DEBUG = 0, PROTO_LOG_INFO = 1, PROTO_LOG_WARNING = 2, PROTO_LOG_ERROR = 3 };
 
@@ -323,6 +345,7 @@ PROTO_STATIC_ASSERT(PROTO_ACK_SIZE == 5, "ACK size");
 PROTO_STATIC_ASSERT(PROTO_TRIGGER_EVENT_SIZE == 31, "TRIGGER_EVENT size");
 PROTO_STATIC_ASSERT(PROTO_MOVE_DONE_SIZE == 17, "MOVE_DONE size");
 PROTO_STATIC_ASSERT(PROTO_STATUS_SIZE == 40, "STATUS size");
+PROTO_STATIC_ASSERT(PROTO_DIAG_SIZE == 41, "DIAG size");
 PROTO_STATIC_ASSERT(PROTO_PROGRAM_SIZE(PROTO_MAX_SHOTS) <= PROTO_MAX_PAYLOAD, "a full program fits a frame");
 PROTO_STATIC_ASSERT(PROTO_LOG_FIXED_SIZE + PROTO_MAX_LOG_TEXT <= PROTO_MAX_PAYLOAD,
                     "a full LOG fits a frame");
@@ -349,6 +372,7 @@ typedef struct {
     proto_trigger_event_t trigger_event;
     proto_move_done_t move_done;
     proto_status_t status;
+    proto_diag_t diag;
     proto_log_t log;
   } body;
 } proto_msg_t;

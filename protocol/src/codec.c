@@ -36,7 +36,7 @@ uint64_t proto_get_u64(const uint8_t* p) {
 /* ---- names ---- */
 
 bool proto_is_command(uint8_t type) {
-  return type >= PROTO_GET_INFO && type <= PROTO_GET_STATUS;
+  return type >= PROTO_GET_INFO && type <= PROTO_GET_DIAG;
 }
 
 const char* proto_type_name(uint8_t type) {
@@ -52,10 +52,12 @@ const char* proto_type_name(uint8_t type) {
     case PROTO_START: return "START";
     case PROTO_ABORT: return "ABORT";
     case PROTO_GET_STATUS: return "GET_STATUS";
+    case PROTO_GET_DIAG: return "GET_DIAG";
     case PROTO_ACK: return "ACK";
     case PROTO_NACK: return "NACK";
     case PROTO_INFO: return "INFO";
     case PROTO_PONG: return "PONG";
+    case PROTO_DIAG: return "DIAG";
     case PROTO_TRIGGER_EVENT: return "TRIGGER_EVENT";
     case PROTO_MOVE_DONE: return "MOVE_DONE";
     case PROTO_STATUS: return "STATUS";
@@ -109,7 +111,8 @@ static int fixed_size(uint8_t type) {
   switch (type) {
     case PROTO_GET_INFO:
     case PROTO_ABORT:
-    case PROTO_GET_STATUS: return 0;
+    case PROTO_GET_STATUS:
+    case PROTO_GET_DIAG: return 0;
     case PROTO_PING: return PROTO_PING_SIZE;
     case PROTO_SET_CONFIG: return PROTO_CONFIG_SIZE;
     case PROTO_MOTOR_ENABLE: return PROTO_MOTOR_ENABLE_SIZE;
@@ -124,6 +127,7 @@ static int fixed_size(uint8_t type) {
     case PROTO_TRIGGER_EVENT: return PROTO_TRIGGER_EVENT_SIZE;
     case PROTO_MOVE_DONE: return PROTO_MOVE_DONE_SIZE;
     case PROTO_STATUS: return PROTO_STATUS_SIZE;
+    case PROTO_DIAG: return PROTO_DIAG_SIZE;
     case PROTO_LOAD_PROGRAM:
     case PROTO_LOG: return -1;
     default: return -ENOMSG;
@@ -291,13 +295,28 @@ static void write_payload(const proto_msg_t* m, writer_t* w) {
       w32(w, s->events_dropped);
       break;
     }
+    case PROTO_DIAG: {
+      const proto_diag_t* d = &m->body.diag;
+      w8(w, d->flags);
+      w32(w, d->cpu_hz);
+      w32(w, d->step_isr_cycles_max);
+      w32(w, d->step_isr_cycles_last);
+      w32(w, d->fault_count);
+      w32(w, d->fault_vector);
+      w32(w, d->fault_pc);
+      w32(w, d->fault_lr);
+      w32(w, d->fault_psr);
+      w32(w, d->fault_cfsr);
+      w32(w, d->fault_hfsr);
+      break;
+    }
     case PROTO_LOG:
       w32(w, m->body.log.log_seq);
       w8(w, m->body.log.level);
       w8(w, m->body.log.length);
       for (uint8_t k = 0; k < m->body.log.length; ++k) w8(w, (uint8_t)m->body.log.text[k]);
       break;
-    default: break; /* GET_INFO, ABORT, GET_STATUS: empty */
+    default: break; /* GET_INFO, ABORT, GET_STATUS, GET_DIAG: empty */
   }
 }
 
@@ -409,6 +428,21 @@ static void read_payload(proto_msg_t* m, reader_t* r) {
       s->trigger_count = r32(r);
       s->rx_errors = r32(r);
       s->events_dropped = r32(r);
+      break;
+    }
+    case PROTO_DIAG: {
+      proto_diag_t* d = &m->body.diag;
+      d->flags = r8(r);
+      d->cpu_hz = r32(r);
+      d->step_isr_cycles_max = r32(r);
+      d->step_isr_cycles_last = r32(r);
+      d->fault_count = r32(r);
+      d->fault_vector = r32(r);
+      d->fault_pc = r32(r);
+      d->fault_lr = r32(r);
+      d->fault_psr = r32(r);
+      d->fault_cfsr = r32(r);
+      d->fault_hfsr = r32(r);
       break;
     }
     case PROTO_LOG:

@@ -99,6 +99,20 @@ json Fields(const proto_msg_t& m) {
               {"rx_errors", s.rx_errors},
               {"events_dropped", s.events_dropped}};
     }
+    case PROTO_DIAG: {
+      const proto_diag_t& d = b.diag;
+      return {{"flags", d.flags},
+              {"cpu_hz", d.cpu_hz},
+              {"step_isr_cycles_max", d.step_isr_cycles_max},
+              {"step_isr_cycles_last", d.step_isr_cycles_last},
+              {"fault_count", d.fault_count},
+              {"fault_vector", d.fault_vector},
+              {"fault_pc", d.fault_pc},
+              {"fault_lr", d.fault_lr},
+              {"fault_psr", d.fault_psr},
+              {"fault_cfsr", d.fault_cfsr},
+              {"fault_hfsr", d.fault_hfsr}};
+    }
     case PROTO_LOG:
       return {{"log_seq", b.log.log_seq},
               {"level", b.log.level},
@@ -120,7 +134,7 @@ int ErrorCode(const std::string& name) {
 
 TEST(ProtocolVectors, EveryGoldenFrameDecodesToItsListedValues) {
   const json manifest = ReadVectorManifest();
-  ASSERT_GE(manifest.size(), 25u);
+  ASSERT_GE(manifest.size(), 27u);
   int valid = 0;
   for (const json& v : manifest) {
     const std::string file = v.at("file");
@@ -146,7 +160,7 @@ TEST(ProtocolVectors, EveryGoldenFrameDecodesToItsListedValues) {
     ASSERT_EQ(n, static_cast<int>(wire.size()));
     EXPECT_EQ(std::vector<uint8_t>(again, again + n), wire);
   }
-  EXPECT_EQ(valid, 20);
+  EXPECT_EQ(valid, 22);
 }
 
 // One frame checked by hand against the README's byte-by-byte walk-through, independently of the codec.

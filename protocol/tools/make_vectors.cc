@@ -283,6 +283,31 @@ int main(int argc, char** argv) {
                  ""});
   }
 
+  // Protocol 1.1.
+  v.push_back({"21_get_diag", "GET_DIAG, seq 15 (protocol 1.1)", Msg(PROTO_GET_DIAG, 15), "{}", {}, ""});
+  {
+    proto_msg_t m = Msg(PROTO_DIAG, 15);
+    m.body.diag = {PROTO_DIAG_CYCLES_VALID | PROTO_DIAG_FAULT_VALID,
+                   96000000,
+                   228,
+                   215,
+                   1,
+                   3,
+                   0x080012A4,
+                   0x08000F31,
+                   0x61000000,
+                   0x00000400,
+                   0x40000000};
+    v.push_back({"22_diag",
+                 "DIAG answering seq 15: step interrupt at most 228 cycles at 96 MHz, a HardFault before the reset",
+                 m,
+                 R"({"flags": 3, "cpu_hz": 96000000, "step_isr_cycles_max": 228, "step_isr_cycles_last": 215,
+     "fault_count": 1, "fault_vector": 3, "fault_pc": 134222500, "fault_lr": 134221617, "fault_psr": 1627389952,
+     "fault_cfsr": 1024, "fault_hfsr": 1073741824})",
+                 {},
+                 ""});
+  }
+
   // Invalid frames: what a decoder must refuse.
   {
     proto_msg_t m = Msg(PROTO_PING, 2);

@@ -144,6 +144,12 @@ bool hal_is_simulated(void) {
   return true;
 }
 
+int hal_diag(hal_diag_t* out) {
+  /* The simulation counts no CPU cycles and cannot fault: GET_DIAG says so (both flags clear). */
+  memset(out, 0, sizeof(*out));
+  return 0;
+}
+
 /* ---- the event loop ---- */
 
 static uint64_t min_u64(uint64_t a, uint64_t b) {

@@ -53,6 +53,10 @@ int hal_uid(uint8_t out[12]) {
 bool hal_is_simulated(void) {
   return false;
 }
+int hal_diag(hal_diag_t* out) {
+  (void)out;
+  return -ENOSYS;
+}
 
 int main(void) {
   fw_init();

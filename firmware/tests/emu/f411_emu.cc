@@ -558,11 +558,17 @@ struct F411Emu::Impl {
     if (uc_mem_write(uc, address, &v, 4) != UC_ERR_OK) FailAt("exception frame outside RAM:", address, 4);
   }
 
+  // IPSR as the image reads it (MRS IPSR: the fault handler records the vector from it).
+  void SetIpsr(uint32_t exception) {
+    const uint32_t xpsr = Reg(UC_ARM_REG_XPSR);
+    SetReg(UC_ARM_REG_XPSR, (xpsr & ~0x1FFu) | (exception & 0x1FFu));
+  }
+
   void Enter(uint32_t exception) {
     const uint32_t vector = ReadWord(vtor + 4 * exception);
     const uint32_t hardfault = image.Symbol("HardFault_Handler", 1) & ~1u;
     char buf[160];
-    if ((vector & ~1u) == hardfault && exception != 3) {
+    if ((vector & ~1u) == hardfault && exception != 3 && options.stop_on_unhandled_interrupt) {
       std::snprintf(buf, sizeof(buf), "unhandled interrupt: exception %u (IRQ %d) has the default handler",
                     exception, int(exception) - 16);
       Fail(buf);
@@ -595,6 +601,7 @@ struct F411Emu::Impl {
     SetReg(UC_ARM_REG_LR, fp ? 0xFFFFFFE9u : 0xFFFFFFF9u);
     if (fp) SetReg(UC_ARM_REG_CONTROL, Reg(UC_ARM_REG_CONTROL) & ~4u);
     SetReg(UC_ARM_REG_PC, vector & ~1u);
+    SetIpsr(exception);
     if (exception == kSysTickException) {
       systick_pending = false;
     } else {
@@ -641,6 +648,7 @@ struct F411Emu::Impl {
     SetReg(UC_ARM_REG_PC, regs[6] & ~1u);
     cycles += kExceptionReturn;
     active.pop_back();
+    SetIpsr(active.empty() ? 0u : active.back().exception);
     const uint64_t spent = cycles - a.entered;
     ExceptionStats& s = stats[a.exception];
     ++s.runs;
@@ -1443,6 +1451,12 @@ const std::vector<PinEdge>& F411Emu::edges() const {
 bool F411Emu::PinLevel(uint8_t port, uint8_t pin) const {
   return (impl_->pin_levels >> (port * 16 + pin)) & 1u;
 }
+void F411Emu::PendInterrupt(uint32_t irq, bool enable) {
+  if (irq >= kIrqCount) return;
+  impl_->nvic_ispr[irq / 32] |= 1u << (irq % 32);
+  if (enable) impl_->nvic_iser[irq / 32] |= 1u << (irq % 32);
+}
+
 void F411Emu::SetInputPin(uint8_t port, uint8_t pin, bool level) {
   impl_->Sync(impl_->cycles);
   impl_->ExternalEdge(port, pin, level, impl_->cycles);

@@ -89,6 +89,9 @@ struct EmuOptions {
   uint8_t uid[12] = {0x33, 0x00, 0x2D, 0x00, 0x0F, 0x51, 0x34, 0x31, 0x33, 0x38, 0x37, 0x37};
   CameraModel camera;
   uint8_t ram_paint = 0xA5;  // every RAM byte at power-on (stack high-water mark by paint)
+  // An interrupt whose vector is the image's default handler stops the run; false lets the image take it
+  // (its fault handler then records the fault and resets the chip: the fault path under test).
+  bool stop_on_unhandled_interrupt = true;
 };
 
 class F411Emu {
@@ -127,6 +130,8 @@ class F411Emu {
   bool PinLevel(uint8_t port, uint8_t pin) const;
   // Drives an input pin from outside at the current cycle.
   void SetInputPin(uint8_t port, uint8_t pin, bool level);
+  // Sets an interrupt pending in the NVIC, as a peripheral would (taken if enabled: by the image, or here).
+  void PendInterrupt(uint32_t irq, bool enable = false);
   // TIM2's counter now.
   uint32_t Tim2Now();
 

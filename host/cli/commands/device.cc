@@ -46,7 +46,7 @@ Result<std::unique_ptr<device::Client>> ConnectBoard(const DeviceOptions& option
 std::string Capabilities(uint32_t caps) {
   static const std::pair<uint32_t, const char*> kNames[] = {
       {1u << 0, "stepper"}, {1u << 1, "lasers"},       {1u << 2, "trigger-out"}, {1u << 3, "exposure-in"},
-      {1u << 4, "program"}, {1u << 5, "laser-safety"}, {1u << 31, "simulated"}};
+      {1u << 4, "program"}, {1u << 5, "laser-safety"}, {1u << 6, "diag"},          {1u << 31, "simulated"}};
   std::string out;
   for (const auto& [bit, name] : kNames) {
     if (caps & bit) out += (out.empty() ? "" : " ") + std::string(name);
@@ -80,6 +80,57 @@ int RunDeviceInfo(const Context& context, const DeviceOptions& options) {
                << "serial:       " << info.uid << "\n"
                << "capabilities: " << Capabilities(info.capabilities) << "\n"
                << "max shots:    " << info.max_shots << " per step\n";
+  return kExitOk;
+}
+
+int RunDeviceStatus(const Context& context, const DeviceOptions& options) {
+  auto client = ConnectBoard(options);
+  if (!client.ok()) return ReportStatus(context, "device status", client.status());
+  auto status = (*client)->GetStatus();
+  if (!status.ok()) return ReportStatus(context, "device status", status.status());
+  static const char* const kStates[] = {"idle", "moving", "running a program", "triggering"};
+  const int state = static_cast<int>(status->state);
+  *context.out << "state:        " << (state >= 0 && state < 4 ? kStates[state] : "unknown")
+               << (status->safety_tripped ? " (laser safety tripped)" : "") << "\n"
+               << "time:         " << status->time_us << " us since power-on\n"
+               << "position:     " << status->position << " steps, motor "
+               << (status->motor_enabled ? "enabled" : "disabled") << ", lasers 0x" << std::hex
+               << int(status->lasers) << std::dec << "\n"
+               << "program:      "
+               << (status->program_loaded ? "step " + std::to_string(status->program_next_step) + " of " +
+                                                std::to_string(status->program_steps)
+                                          : std::string("none"))
+               << "\n"
+               << "counters:     " << status->trigger_count << " triggers, " << status->rx_errors
+               << " bad frames, " << status->events_dropped << " events dropped\n";
+  auto diag = (*client)->GetDiag();
+  if (!diag.ok() && diag.status().code() == StatusCode::kFailedPrecondition) {  // a protocol 1.0 board
+    *context.out << "diagnostics:  not reported by this firmware (protocol " << (*client)->info().protocol_major
+                 << "." << (*client)->info().protocol_minor << ")\n";
+    return kExitOk;
+  }
+  if (!diag.ok()) return ReportStatus(context, "device status", diag.status());
+  if (diag->step_isr_cycles_max.has_value() && diag->cpu_hz.has_value() && *diag->cpu_hz > 0) {
+    const double us = 1e6 / double(*diag->cpu_hz);
+    *context.out << "step irq:     worst " << *diag->step_isr_cycles_max << " cycles (" << std::fixed
+                 << std::setprecision(2) << *diag->step_isr_cycles_max * us << " us), last "
+                 << *diag->step_isr_cycles_last << " cycles, at " << *diag->cpu_hz / 1000000.0 << " MHz\n"
+                 << std::defaultfloat;
+  } else {
+    *context.out << "step irq:     not measured on this board\n";
+  }
+  if (diag->fault.has_value()) {
+    const device::BoardDiag::Fault& f = *diag->fault;
+    *context.out << "last fault:   " << (f.vector == 3 ? std::string("HardFault")
+                                                       : f.vector >= 16 ? "interrupt " + std::to_string(f.vector - 16) +
+                                                                              " without a handler"
+                                                                        : "exception " + std::to_string(f.vector))
+                 << " before the last reset (" << f.count << " since power-on): pc 0x" << std::hex << f.pc
+                 << ", lr 0x" << f.lr << ", xpsr 0x" << f.psr << ", cfsr 0x" << f.cfsr << ", hfsr 0x" << f.hfsr
+                 << std::dec << "\n";
+  } else {
+    *context.out << "last fault:   none recorded\n";
+  }
   return kExitOk;
 }
 
@@ -255,7 +306,7 @@ int RunDeviceFlash(const Context& context, const DeviceOptions& options, const s
 }
 
 void RegisterDevice(CLI::App& app, const Context& context, int* exit_code) {
-  CLI::App* sub = app.add_subcommand("device", "Talk to the scanner board: list, info, ping, move, laser, flash");
+  CLI::App* sub = app.add_subcommand("device", "Talk to the scanner board: list, info, status, ping, move, laser, flash");
   sub->require_subcommand(1);
   static DeviceOptions options;
   static int count = 20;
@@ -273,6 +324,10 @@ void RegisterDevice(CLI::App& app, const Context& context, int* exit_code) {
   CLI::App* info = sub->add_subcommand("info", "Show the board's firmware version and capabilities");
   add_common(info);
   info->callback([&context, exit_code] { *exit_code = RunDeviceInfo(context, options); });
+  CLI::App* status = sub->add_subcommand(
+      "status", "Show the board's state and its diagnostics (step interrupt cycles, the last fault)");
+  add_common(status);
+  status->callback([&context, exit_code] { *exit_code = RunDeviceStatus(context, options); });
   CLI::App* ping = sub->add_subcommand("ping", "Measure the round trip and the clock offset to the board");
   add_common(ping);
   ping->add_option("--count", count, "number of round trips (>= 3)");

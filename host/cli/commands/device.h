@@ -20,6 +20,9 @@ int RunDeviceList(const Context& context);
 // Protocol and firmware versions, capabilities, serial number.
 int RunDeviceInfo(const Context& context, const DeviceOptions& options);
 // `count` round trips: fastest and median round trip, clock offset and drift.
+// `rotoscan device status`: the board's STATUS and, from protocol 1.1 boards, its DIAG (the step interrupt's
+// measured cycles, the fault recorded before the last reset).
+int RunDeviceStatus(const Context& context, const DeviceOptions& options);
 int RunDevicePing(const Context& context, const DeviceOptions& options, int count);
 // Turns the table by `degrees` (motor steps = degrees / 360 * steps_per_rev) and waits for the move to end.
 int RunDeviceMove(const Context& context, const DeviceOptions& options, double degrees, int steps_per_rev);

@@ -193,6 +193,15 @@ TEST_F(EmuScan, ScanOf16StepsTimestampsExactToTheTick) {
   EXPECT_EQ(step.runs, uint64_t(step_pulses) + (kSteps - 1)) << "step interrupts";
   EXPECT_LE(step.max_cycles, kBudgetCycles) << "step interrupt over its budget";
   EXPECT_LE(timebase.max_cycles, kBudgetCycles) << "trigger interrupt over the budget";
+  // GET_DIAG over USB: the image's own DWT measurement of the step interrupt, against the harness's record of
+  // the CYCCNT reads the handler made (exact: the same counter).
+  auto diag = client_->GetDiag();
+  ASSERT_TRUE(diag.ok()) << diag.status().ToString();
+  ASSERT_TRUE(diag->step_isr_cycles_max.has_value());
+  EXPECT_EQ(*diag->cpu_hz, 96'000'000u);
+  EXPECT_EQ(*diag->step_isr_cycles_max, step.max_dwt_window);
+  EXPECT_LE(*diag->step_isr_cycles_max, step.max_cycles) << "the body is part of the whole run";
+  EXPECT_FALSE(diag->fault.has_value());
   const uint32_t stack = emu.StackHighWater();
   EXPECT_LT(stack, 4096u) << "deeper than the linker script's 4 KB reservation";
   const uint64_t cycles = emu.cycles() - start_cycles;
@@ -210,6 +219,53 @@ TEST_F(EmuScan, ScanOf16StepsTimestampsExactToTheTick) {
       static_cast<unsigned long long>(timebase.max_cycles), timebase.max_cycles / 96.0,
       static_cast<unsigned long long>(usb.runs), static_cast<unsigned long long>(usb.max_cycles), stack,
       100.0 * double(emu.sleep_cycles()) / double(emu.cycles()));
+}
+
+// The fault path on the image: an interrupt without a handler of its own (USART1, IRQ 37: the USB image has
+// no UART, its vector is the default HardFault_Handler; the harness enables and pends it, as a stray enable
+// would) ends in the image's fault handler, which switches the lasers off, records the fault
+// in RAM that survives the reset, and resets the chip. After the reset the record comes back over GET_DIAG.
+TEST(EmuFault, UnhandledInterruptIsRecordedAcrossTheResetAndReportedByGetDiag) {
+  if (!fw_emu::ImageExists(fw_emu::ImagePath())) GTEST_SKIP() << "no firmware image at " << fw_emu::ImagePath();
+  fw_emu::EmuOptions options;
+  options.stop_on_unhandled_interrupt = false;
+  EmuBoard board(options);
+  std::string error;
+  ASSERT_TRUE(board.Boot(&error)) << error;
+  {
+    auto client = Client::Connect(MakeInProcessTransport(&board));
+    ASSERT_TRUE(client.ok()) << client.status().ToString();
+    ASSERT_TRUE((*client)->SetLasers(kLaserLeft).ok());
+    auto diag = (*client)->GetDiag();
+    ASSERT_TRUE(diag.ok()) << diag.status().ToString();
+    EXPECT_FALSE(diag->fault.has_value()) << "no fault since power-on";
+  }
+  fw_emu::F411Emu& emu = board.emu();
+  ASSERT_TRUE(emu.PinLevel(fw_emu::kPortB, 13));
+  emu.PendInterrupt(37, /*enable=*/true);
+  const size_t edges_before = emu.edges().size();
+  ASSERT_TRUE(emu.RunUs(100)) << emu.error();
+  ASSERT_EQ(emu.resets(), 1u) << "the fault handler resets the chip";
+  bool laser_off_first = false;
+  for (size_t i = edges_before; i < emu.edges().size(); ++i) {
+    const fw_emu::PinEdge& e = emu.edges()[i];
+    if (e.port == fw_emu::kPortB && e.pin == 13) {
+      laser_off_first = !e.level;
+      break;
+    }
+  }
+  EXPECT_TRUE(laser_off_first) << "the fault handler's first act: lasers off";
+  ASSERT_TRUE(board.Reenumerate(&error)) << error;
+  auto client = Client::Connect(MakeInProcessTransport(&board));
+  ASSERT_TRUE(client.ok()) << client.status().ToString();
+  auto diag = client.value()->GetDiag();
+  ASSERT_TRUE(diag.ok()) << diag.status().ToString();
+  ASSERT_TRUE(diag->fault.has_value()) << "the record did not survive the reset";
+  EXPECT_EQ(diag->fault->vector, 16u + 37u) << "exception 53 = IRQ 37";
+  EXPECT_EQ(diag->fault->count, 1u);
+  const uint32_t pc = diag->fault->pc;
+  EXPECT_TRUE(pc >= 0x08000000u && pc < 0x08008000u) << std::hex << pc << ": not in the image";
+  EXPECT_EQ(board.error(), "");
 }
 
 }  // namespace

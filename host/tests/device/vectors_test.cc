@@ -158,5 +158,82 @@ TEST(VectorsTest, EventsThroughTheClientAndBadFramesDropped) {
   EXPECT_EQ(logs, 1);
 }
 
+// A protocol 1.1 board made of the golden frames: INFO (02_info with the diag capability and minor 1) and
+// DIAG (22_diag), each re-sent with the seq of the command it answers.
+class DiagReplayBoard : public VirtualBoard {
+ public:
+  void Receive(const uint8_t* data, size_t size) override {
+    for (size_t i = 0; i < size; ++i) {
+      if (data[i] != 0) {
+        rx_.push_back(data[i]);
+        continue;
+      }
+      proto_msg_t cmd;
+      if (proto_decode_frame(rx_.data(), rx_.size(), &cmd) == 0) Answer(cmd);
+      rx_.clear();
+    }
+  }
+  size_t Transmit(uint8_t* out, size_t max) override {
+    size_t n = 0;
+    while (n < max && !tx_.empty()) {
+      out[n++] = tx_.front();
+      tx_.pop_front();
+    }
+    return n;
+  }
+  void Advance(int64_t) override {}
+
+ private:
+  void Answer(const proto_msg_t& cmd) {
+    proto_msg_t reply;
+    const char* file = cmd.type == PROTO_GET_INFO ? "02_info.hex" : cmd.type == PROTO_GET_DIAG ? "22_diag.hex" : nullptr;
+    if (file == nullptr) return;
+    const std::vector<uint8_t> wire = ReadHexVector(file);
+    ASSERT_EQ(proto_decode_frame(wire.data(), wire.size(), &reply), 0);
+    if (reply.type == PROTO_INFO) {
+      reply.body.info.proto_minor = 1;
+      reply.body.info.capabilities |= PROTO_CAP_DIAG;
+    }
+    reply.seq = cmd.seq;
+    uint8_t out[PROTO_MAX_WIRE_FRAME];
+    const int n = proto_encode_frame(&reply, out, sizeof(out));
+    ASSERT_GT(n, 0);
+    tx_.insert(tx_.end(), out, out + n);
+  }
+  std::vector<uint8_t> rx_;
+  std::deque<uint8_t> tx_;
+};
+
+TEST(VectorsTest, DiagThroughTheClient) {
+  const nlohmann::json f = Entry(Manifest(), "22_diag")["fields"];
+  DiagReplayBoard board;
+  auto client = Client::Connect(MakeInProcessTransport(&board));
+  ASSERT_TRUE(client.ok()) << client.status().ToString();
+  auto diag = (*client)->GetDiag();
+  ASSERT_TRUE(diag.ok()) << diag.status().ToString();
+  ASSERT_TRUE(diag->cpu_hz.has_value());  // flags bit 0
+  EXPECT_EQ(*diag->cpu_hz, f["cpu_hz"].get<uint32_t>());
+  EXPECT_EQ(*diag->step_isr_cycles_max, f["step_isr_cycles_max"].get<uint32_t>());
+  EXPECT_EQ(*diag->step_isr_cycles_last, f["step_isr_cycles_last"].get<uint32_t>());
+  ASSERT_TRUE(diag->fault.has_value());  // flags bit 1
+  EXPECT_EQ(diag->fault->count, f["fault_count"].get<uint32_t>());
+  EXPECT_EQ(diag->fault->vector, f["fault_vector"].get<uint32_t>());
+  EXPECT_EQ(diag->fault->pc, f["fault_pc"].get<uint32_t>());
+  EXPECT_EQ(diag->fault->lr, f["fault_lr"].get<uint32_t>());
+  EXPECT_EQ(diag->fault->psr, f["fault_psr"].get<uint32_t>());
+  EXPECT_EQ(diag->fault->cfsr, f["fault_cfsr"].get<uint32_t>());
+  EXPECT_EQ(diag->fault->hfsr, f["fault_hfsr"].get<uint32_t>());
+}
+
+TEST(VectorsTest, DiagFromAProtocol10BoardIsRefusedWithoutAsking) {
+  ReplayBoard board;  // 02_info: protocol 1.0, no diag capability
+  auto client = Client::Connect(MakeInProcessTransport(&board));
+  ASSERT_TRUE(client.ok()) << client.status().ToString();
+  auto diag = (*client)->GetDiag();
+  ASSERT_FALSE(diag.ok());
+  EXPECT_EQ(diag.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(diag.status().message().find("protocol 1.0"), std::string::npos) << diag.status().ToString();
+}
+
 }  // namespace
 }  // namespace rotoscan::device

@@ -30,6 +30,7 @@ namespace {
 
 bool IsReply(const proto_msg_t& m) {
   return m.type == PROTO_ACK || m.type == PROTO_NACK || m.type == PROTO_INFO || m.type == PROTO_PONG ||
+         m.type == PROTO_DIAG ||
          (m.type == PROTO_STATUS && m.body.status.cause == PROTO_CAUSE_REPLY);
 }
 
@@ -41,6 +42,7 @@ bool Answers(const proto_msg_t& request, const proto_msg_t& answer) {
     case PROTO_INFO: return request.type == PROTO_GET_INFO;
     case PROTO_PONG: return request.type == PROTO_PING;
     case PROTO_STATUS: return request.type == PROTO_GET_STATUS;
+    case PROTO_DIAG: return request.type == PROTO_GET_DIAG;
     default: return false;
   }
 }
@@ -484,6 +486,36 @@ Result<BoardStatus> Client::GetStatus() {
   proto_msg_init(&request.msg, PROTO_GET_STATUS, 0);
   ROTOSCAN_RETURN_IF_ERROR(Command(request, &answer));
   return ToBoardStatus(answer.msg.body.status);
+}
+
+Result<BoardDiag> Client::GetDiag() {
+  if (!(info_.capabilities & PROTO_CAP_DIAG)) {
+    return FailedPreconditionError("the board does not answer GET_DIAG (protocol " +
+                              std::to_string(info_.protocol_major) + "." + std::to_string(info_.protocol_minor) +
+                              ", capability 'diag' not advertised)");
+  }
+  Message request, answer;
+  proto_msg_init(&request.msg, PROTO_GET_DIAG, 0);
+  ROTOSCAN_RETURN_IF_ERROR(Command(request, &answer));
+  const proto_diag_t& d = answer.msg.body.diag;
+  BoardDiag out;
+  if (d.flags & PROTO_DIAG_CYCLES_VALID) {
+    out.cpu_hz = d.cpu_hz;
+    out.step_isr_cycles_max = d.step_isr_cycles_max;
+    out.step_isr_cycles_last = d.step_isr_cycles_last;
+  }
+  if (d.flags & PROTO_DIAG_FAULT_VALID) {
+    BoardDiag::Fault f;
+    f.count = d.fault_count;
+    f.vector = d.fault_vector;
+    f.pc = d.fault_pc;
+    f.lr = d.fault_lr;
+    f.psr = d.fault_psr;
+    f.cfsr = d.fault_cfsr;
+    f.hfsr = d.fault_hfsr;
+    out.fault = f;
+  }
+  return out;
 }
 
 Result<std::optional<uint32_t>> Client::ResumeProgram() {

@@ -120,6 +120,21 @@ struct BoardStatus {
   uint32_t events_dropped = 0;
 };
 
+// GET_DIAG (protocol 1.1): what the board measures about itself.
+struct BoardDiag {
+  // The step interrupt's cost in CPU cycles (DWT on the STM32F411), when the board counts them.
+  std::optional<uint32_t> cpu_hz;
+  std::optional<uint32_t> step_isr_cycles_max;
+  std::optional<uint32_t> step_isr_cycles_last;
+  // The fault recorded before the last reset, if there was one (HardFault or an interrupt without handler).
+  struct Fault {
+    uint32_t count = 0;
+    uint32_t vector = 0;  // 3 = HardFault, 16 + n = interrupt n
+    uint32_t pc = 0, lr = 0, psr = 0, cfsr = 0, hfsr = 0;
+  };
+  std::optional<Fault> fault;
+};
+
 struct LogEvent {
   int level = 0;
   std::string text;
@@ -163,6 +178,8 @@ class Client {
   Status Start(uint32_t first_step = 0);
   Status Abort();
   Result<BoardStatus> GetStatus();
+  // Unimplemented on a board without PROTO_CAP_DIAG (protocol 1.0).
+  Result<BoardDiag> GetDiag();
   // After an interruption: GET_STATUS, and START at the step the board says comes next, if the program
   // did not finish. Returns the step it resumed at, or nullopt when nothing was left to do.
   Result<std::optional<uint32_t>> ResumeProgram();
