@@ -56,6 +56,12 @@ TEST_F(CliDeviceTest, ListInfoPingMoveLaser) {
   ASSERT_EQ(RunDeviceInfo(info.context, DeviceOptions{}), kExitOk) << info.err.str();
   EXPECT_NE(info.out.str().find("protocol:     1."), std::string::npos) << info.out.str();
   EXPECT_NE(info.out.str().find("simulated"), std::string::npos) << info.out.str();
+  EXPECT_NE(info.out.str().find(" diag "), std::string::npos) << info.out.str();
+  Output status;
+  ASSERT_EQ(RunDeviceStatus(status.context, DeviceOptions{}), kExitOk) << status.err.str();
+  EXPECT_NE(status.out.str().find("state:        idle"), std::string::npos) << status.out.str();
+  EXPECT_NE(status.out.str().find("step irq:     not measured on this board"), std::string::npos) << status.out.str();
+  EXPECT_NE(status.out.str().find("last fault:   none recorded"), std::string::npos) << status.out.str();
   Output ping;
   ASSERT_EQ(RunDevicePing(ping.context, DeviceOptions{}, 12), kExitOk) << ping.err.str();
   EXPECT_NE(ping.out.str().find("12 pings: round trip min"), std::string::npos) << ping.out.str();
