@@ -42,6 +42,10 @@ uint32_t port_step_isr_cycles_last(void);
 void transport_init(void);
 void transport_poll(void);
 
+/* Every interrupt handler of the port calls this (or sets the flag itself): the main loop then makes another
+ * pass before it sleeps (port_stm32f411.c, "Sleep"). */
+void port_note_wake(void);
+
 void nvic_enable(uint32_t irq, uint8_t priority);
 void nvic_pend(uint32_t irq);
 

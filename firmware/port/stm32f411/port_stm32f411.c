@@ -20,6 +20,15 @@
  *
  * Interrupt priorities (lower = more urgent): TIM3 step 0, TIM2 trigger / laser / exposure 1, USB and UART 2.
  * The core's queues are single-producer single-consumer between one interrupt and the main loop.
+ *
+ * Sleep. When a main-loop pass is done the CPU waits in WFI until an interrupt or the core's next deadline
+ * (fw_next_wakeup_us: a settle time, an exposure's end, the laser-safety timeout, at most 1 s away), which
+ * TIM2's channel 4 compare turns into an interrupt. Wake-up sources: TIM2 (that compare, the trigger, the
+ * laser switch, the exposure line), TIM3 (steps), OTG_FS (host traffic; USART1 in the UART image). No work
+ * is slept on: every handler sets g_port.woke, cleared before the pass; the decision to sleep is taken with
+ * interrupts masked (PRIMASK), and WFI still wakes on an interrupt that becomes pending while they are
+ * masked, which then runs at the CPSIE after it. Checked on the emulated image (issue 18): it enumerates and
+ * scans with the sleep, and the time asleep is counted.
  */
 #include <stdbool.h>
 #include <stdint.h>
@@ -28,12 +37,15 @@
 #include "fw.h"
 #include "hal.h"
 #include "port.h"
+#include "timebase.h"
 
 #define TIM2_REG(off) REG32(TIM2_BASE + (off))
 #define TIM3_REG(off) REG32(TIM3_BASE + (off))
 #define LASER_BITS ((1u << BOARD_LASER_L_PIN) | (1u << BOARD_LASER_R_PIN))
 #define PRIO_STEP 0u
 #define PRIO_TIMEBASE 1u
+#define WAKE_CH 4u          /* TIM2 CH4: compare only, the main loop's wake-up deadline */
+#define SLEEP_MIN_US 20u    /* a deadline nearer than this is polled for, not slept for */
 
 static struct {
   volatile uint8_t laser_next;    /* mask the CH2 compare switches to */
@@ -43,6 +55,7 @@ static struct {
   volatile uint32_t step_long;    /* us of a long interval still to wait (TIM3 is 16 bit) */
   volatile uint32_t isr_cycles_last;
   volatile uint32_t isr_cycles_max;
+  volatile bool woke;             /* an interrupt ran since the main loop's pass began */
 } g_port;
 
 /* ---- GPIO ---- */
@@ -112,6 +125,11 @@ static void timers_init(void) {
 void TIM2_IRQHandler(void);
 void TIM2_IRQHandler(void) {
   const uint32_t sr = TIM2_REG(TIM_SR) & TIM2_REG(TIM_DIER);
+  g_port.woke = true;
+  if (sr & TIM_SR_CCIF(WAKE_CH)) { /* the main loop's deadline: nothing to do but wake it */
+    TIM2_REG(TIM_SR) = ~TIM_SR_CCIF(WAKE_CH);
+    TIM2_REG(TIM_DIER) &= ~TIM_DIER_CCIE(WAKE_CH);
+  }
   if (sr & TIM_SR_CCIF(BOARD_LASER_CH)) {
     TIM2_REG(TIM_SR) = ~TIM_SR_CCIF(BOARD_LASER_CH); /* rc_w0: write 0 to clear, 1 leaves the others */
     TIM2_REG(TIM_DIER) &= ~TIM_DIER_CCIE(BOARD_LASER_CH);
@@ -155,6 +173,7 @@ void TIM3_IRQHandler(void);
 void TIM3_IRQHandler(void) {
   const uint32_t t0 = dwt_cycles();
   TIM3_REG(TIM_SR) = ~TIM_SR_UIF;
+  g_port.woke = true;
   if (g_port.step_long > 0u) {
     step_timer_load(g_port.step_long);
     return;
@@ -293,6 +312,26 @@ int hal_diag(hal_diag_t* out) {
   return 0;
 }
 
+/* ---- sleep ---- */
+
+void port_note_wake(void) {
+  g_port.woke = true;
+}
+
+/* Waits in WFI for an interrupt or until device time `wake` (see the top of this file). */
+static void sleep_until(uint64_t wake) {
+  __asm__ volatile("cpsid i" ::: "memory");
+  const uint64_t now = tb_now();
+  if (!g_port.woke && wake > now + SLEEP_MIN_US) {
+    TIM2_REG(TIM_CCR4) = tb_to_counter(wake);
+    TIM2_REG(TIM_SR) = ~TIM_SR_CCIF(WAKE_CH);
+    TIM2_REG(TIM_DIER) |= TIM_DIER_CCIE(WAKE_CH);
+    __asm__ volatile("dsb\n\twfi" ::: "memory");
+    TIM2_REG(TIM_DIER) &= ~TIM_DIER_CCIE(WAKE_CH);
+  }
+  __asm__ volatile("cpsie i" ::: "memory");
+}
+
 /* ---- main ---- */
 
 int main(void) {
@@ -311,7 +350,9 @@ int main(void) {
   }
   gpio_write(BOARD_LED_PORT, BOARD_LED_PIN, false); /* up */
   for (;;) {
+    g_port.woke = false;
     fw_poll();
     transport_poll();
+    sleep_until(fw_next_wakeup_us());
   }
 }

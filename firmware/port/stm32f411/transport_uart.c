@@ -18,6 +18,7 @@ static volatile uint32_t g_uart_dropped;
 void USART1_IRQHandler(void);
 void USART1_IRQHandler(void) {
   const uint32_t sr = USART_REG(USART_SR);
+  port_note_wake();
   if (sr & (USART_SR_RXNE | USART_SR_ORE)) {
     const uint8_t b = (uint8_t)USART_REG(USART_DR); /* reading DR clears RXNE and ORE */
     if (fw_usb_rx(&b, 1) != 1u) ++g_uart_dropped;

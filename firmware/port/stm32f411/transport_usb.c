@@ -14,6 +14,7 @@
 
 void OTG_FS_IRQHandler(void);
 void OTG_FS_IRQHandler(void) {
+  port_note_wake();
   dcd_irq();
   usb_link_service();
 }

@@ -37,7 +37,7 @@ constexpr uint32_t kBranchPenalty = 3;
 constexpr uint32_t kExceptionEntry = 12, kExceptionReturn = 10;
 constexpr uint32_t kApb1Access = 4, kAhbAccess = 1;
 
-enum InsnFlags : uint8_t { kInsnWfi = 1, kInsnWfe = 2 };
+enum InsnFlags : uint8_t { kInsnWfi = 1, kInsnWfe = 2, kInsnCpsie = 4 };
 
 struct InsnInfo {
   uint8_t cycles = 1;
@@ -83,6 +83,10 @@ InsnInfo Classify(uint16_t hw1, uint16_t hw2) {
   }
   if (hw1 == 0xBF20) {
     i.flags = kInsnWfe;
+    return i;
+  }
+  if (hw1 == 0xB662) {  // CPSIE i: an interrupt held back by PRIMASK is taken right after it
+    i.flags = kInsnCpsie;
     return i;
   }
   if ((hw1 & 0xF000) == 0x5000 || (hw1 & 0xE000) == 0x6000 || (hw1 & 0xF000) == 0x8000 ||
@@ -1192,6 +1196,7 @@ struct F411Emu::Impl {
         return;
       }
       e->cycles += i.cycles;
+      if (i.flags & kInsnCpsie) e->stop_at = 0;  // stop before the next instruction: Step takes it
     } else {
       e->cycles += 1;  // code outside flash (none in the image): one cycle
     }

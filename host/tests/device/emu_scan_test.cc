@@ -51,6 +51,10 @@ MotionConfig Config() {
   return c;
 }
 
+uint64_t cycles_so_far(const fw_emu::F411Emu& emu, uint64_t since) {
+  return emu.cycles() - since;
+}
+
 fw_emu::EmuOptions WithCamera() {
   fw_emu::EmuOptions o;
   o.camera.enabled = true;
@@ -202,6 +206,9 @@ TEST_F(EmuScan, ScanOf16StepsTimestampsExactToTheTick) {
   EXPECT_EQ(*diag->step_isr_cycles_max, step.max_dwt_window);
   EXPECT_LE(*diag->step_isr_cycles_max, step.max_cycles) << "the body is part of the whole run";
   EXPECT_FALSE(diag->fault.has_value());
+  // The main loop sleeps (WFI) while it waits: most of a scan is waiting for exposures and settling.
+  EXPECT_GT(emu.wfi_count(), 0u);
+  EXPECT_GT(emu.sleep_cycles(), cycles_so_far(emu, start_cycles) / 2) << "the image hardly sleeps";
   const uint32_t stack = emu.StackHighWater();
   EXPECT_LT(stack, 4096u) << "deeper than the linker script's 4 KB reservation";
   const uint64_t cycles = emu.cycles() - start_cycles;
@@ -210,7 +217,7 @@ TEST_F(EmuScan, ScanOf16StepsTimestampsExactToTheTick) {
       "  step interrupt (TIM3): %llu runs, worst %llu cycles (%.2f us), mean %.0f; DWT window in the image %llu\n"
       "  trigger/laser/exposure interrupt (TIM2): %llu runs, worst %llu cycles (%.2f us)\n"
       "  USB interrupt (OTG_FS): %llu runs, worst %llu cycles\n"
-      "  stack high-water mark: %u bytes of 4096; asleep %.1f %% of the time\n",
+      "  stack high-water mark: %u bytes of 4096; asleep (WFI) %.1f %% of the time since power-on\n",
       kSteps, program.shots.size(), cycles / 96000.0,
       static_cast<unsigned long long>(emu.instructions() - start_instructions),
       static_cast<unsigned long long>(step.runs), static_cast<unsigned long long>(step.max_cycles),

@@ -1,7 +1,7 @@
 // Issue 18, hardware in the loop with the flashed image: the host's real libusb transport and client, through
 // umockdev's emulated usbdevfs (mock_usb_board), talk to rotoscan-fw.elf running on the emulated STM32F411
 // (firmware/tests/emu, EmuBoard): each bulk URB becomes OUT or IN transactions on the emulated OTG_FS core.
-// A 16-step scan program (short: the image runs at about half of real time under emulation here) with the
+// A 16-step scan program (short, to keep the test near a second) with the
 // faults of hil_sim_test injected on the mocked endpoint -- a lost packet, a corrupted byte, a duplicated
 // command, an unplug long enough for the image's laser-safety timeout to stop the program, a re-plug (the
 // harness re-enumerates the board as the kernel would) and a resume. Every TRIGGER_EVENT is checked against
@@ -61,7 +61,9 @@ class HilEmuTest : public ::testing::Test {
     std::string error;
     ASSERT_TRUE(board_.Boot(&error)) << error;
     MockUsbBoard::Options o;
-    o.virtual_us_per_tick = 500;
+    // The image sleeps (WFI) most of a scan and the emulator skips that time, so board time could outrun the
+    // host's 20 ms keep-alive: at most 200 us of board time per 100 us of real time.
+    o.virtual_us_per_tick = 200;
     o.real_us_per_tick = 100;
     usb_ = std::make_unique<MockUsbBoard>(&board_, o);
     ClientOptions options;
