@@ -1398,7 +1398,13 @@ bool F411Emu::Run(uint64_t n) {
 }
 
 bool F411Emu::RunUs(uint64_t us) {
-  return Run(us * (impl_->sysclk / 1000000u));
+  // In slices of 100 us, each at the SYSCLK of its start (the image switches from 16 MHz to 96 MHz once).
+  for (uint64_t done = 0; done < us;) {
+    const uint64_t slice = std::min<uint64_t>(us - done, 100);
+    if (!Run(slice * (impl_->sysclk / 1000000u))) return false;
+    done += slice;
+  }
+  return true;
 }
 
 bool F411Emu::ok() const {

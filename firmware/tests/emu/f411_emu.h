@@ -105,7 +105,7 @@ class F411Emu {
   void PowerOn();
   // Runs the CPU for `cycles` more cycles of emulated time. false when it stopped on an error.
   bool Run(uint64_t cycles);
-  // The same in microseconds at the current SYSCLK.
+  // The same in microseconds (in 100 us slices, each at the SYSCLK of its start).
   bool RunUs(uint64_t us);
 
   bool ok() const;
