@@ -1,6 +1,6 @@
 // Issue 18: the flashed image on the emulated STM32F411 (firmware/tests/emu), driven by the host's real
 // device::Client over the in-process transport (deterministic: the board's time runs only while the host
-// waits). A 16-step scan program with four shots per step and a camera model on the pins (each trigger edge
+// waits). A 200-step scan program with four shots per step (the HIL tests' scan) and a camera model on the pins (each trigger edge
 // raises the exposure-active line 12 us later for 400 us). Checked against the emulator's own record:
 //   - every TRIGGER_EVENT's time is the TIM2 count at which the trigger pin rose, exact to the tick, and its
 //     exposure-seen time the count TIM2's capture latched for the camera's edge;
@@ -25,7 +25,7 @@ namespace {
 
 using testing::EmuBoard;
 
-constexpr uint32_t kSteps = 16;
+constexpr uint32_t kSteps = 200;
 constexpr int32_t kStepsPerMove = 16;
 constexpr uint32_t kBudgetCycles = 480;  // DESIGN.md: 5 us at 96 MHz
 constexpr uint32_t kTim2Exception = 16 + fw_emu::kTim2Irq, kTim3Exception = 16 + fw_emu::kTim3Irq,
@@ -120,7 +120,7 @@ TEST_F(EmuScan, LaserCommandReachesItsPin) {
   }
 }
 
-TEST_F(EmuScan, ScanOf16StepsTimestampsExactToTheTick) {
+TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
   fw_emu::F411Emu& emu = board_.emu();
   ASSERT_TRUE(client_->SetConfig(Config()).ok());
   ASSERT_TRUE(client_->EnableMotor(true).ok());
@@ -129,7 +129,12 @@ TEST_F(EmuScan, ScanOf16StepsTimestampsExactToTheTick) {
   ASSERT_TRUE(client_->Start(0).ok());
   std::vector<TriggerEvent> triggers;
   bool done = false;
+  int64_t last_ping = client_->transport().NowUs();
   for (int i = 0; i < 100000 && !done; ++i) {
+    if (client_->transport().NowUs() - last_ping > 100'000) {  // the laser-safety keep-alive (1 s timeout)
+      ASSERT_TRUE(client_->Ping().ok()) << board_.error();
+      last_ping = client_->transport().NowUs();
+    }
     auto event = client_->NextEvent(20'000);
     ASSERT_TRUE(event.ok()) << event.status().ToString() << " / " << board_.error();
     if (!event->has_value()) continue;
