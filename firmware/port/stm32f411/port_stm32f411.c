@@ -15,8 +15,8 @@
  * port_step_isr_cycles_last / _max (g_port.isr_cycles_*), reported by GET_DIAG (protocol 1.1, hal_diag).
  * Measured on the image under emulation (firmware/tests/emu, issue 18; the emulator's cycle model, not the
  * chip): 231 cycles between the two DWT reads, 283 cycles from exception entry to return, worst case over a
- * 200-step scan (firmware/README.md). No floating point, no division, no loop in the interrupt: all the profile arithmetic runs in
- * the main loop (core/stepper.c).
+ * 200-step scan (firmware/README.md). No floating point, no division, no loop in the interrupt: all the
+ * profile arithmetic runs in the main loop (core/stepper.c).
  *
  * Interrupt priorities (lower = more urgent): TIM3 step 0, TIM2 trigger / laser / exposure 1, USB and UART 2.
  * The core's queues are single-producer single-consumer between one interrupt and the main loop.

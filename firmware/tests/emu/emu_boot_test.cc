@@ -18,7 +18,8 @@
 namespace rotoscan::fw_emu {
 namespace {
 
-constexpr uint32_t kRccPllcfgr = 0x40023804, kRccCfgr = 0x40023808, kFlashAcr = 0x40023C00, kPwrCr = 0x40007000;
+constexpr uint32_t kRccPllcfgr = 0x40023804, kRccCfgr = 0x40023808, kFlashAcr = 0x40023C00,
+                   kPwrCr = 0x40007000;
 
 class EmuBoot : public ::testing::Test {
  protected:
@@ -62,7 +63,8 @@ TEST_F(EmuBoot, ProgramsTheClockTreeOfTheIssue) {
   EXPECT_EQ(emu_->usb_clock_hz(), 48000000u);
   EXPECT_EQ(emu_->apb1_hz(), 48000000u);
   std::printf("boot: %llu instructions, %llu cycles in the first 2 ms (16 MHz until the PLL, then 96 MHz)\n",
-              static_cast<unsigned long long>(emu_->instructions()), static_cast<unsigned long long>(emu_->cycles()));
+              static_cast<unsigned long long>(emu_->instructions()),
+              static_cast<unsigned long long>(emu_->cycles()));
 }
 
 TEST_F(EmuBoot, PinsAreSafeAndTheLedComesOn) {
@@ -83,16 +85,16 @@ TEST_F(EmuBoot, EnumeratesLikeLinuxDoes) {
   const UsbHost::Enumeration e = host.Enumerate(9);
   ASSERT_TRUE(e.ok) << e.error;
   ASSERT_EQ(e.device.size(), 18u);
-  EXPECT_EQ(e.device[1], 1);                             // DEVICE
-  EXPECT_EQ(e.device[2] | e.device[3] << 8, 0x0200);     // USB 2.00
-  EXPECT_EQ(e.device[7], 64);                            // bMaxPacketSize0
-  EXPECT_EQ(e.device[8] | e.device[9] << 8, 0x1209);     // pid.codes
+  EXPECT_EQ(e.device[1], 1);                          // DEVICE
+  EXPECT_EQ(e.device[2] | e.device[3] << 8, 0x0200);  // USB 2.00
+  EXPECT_EQ(e.device[7], 64);                         // bMaxPacketSize0
+  EXPECT_EQ(e.device[8] | e.device[9] << 8, 0x1209);  // pid.codes
   EXPECT_EQ(e.device[10] | e.device[11] << 8, 0x0001);
   EXPECT_EQ(e.device[13], FW_VERSION_MAJOR);
   // Configuration: one vendor-specific interface with bulk OUT 0x01 and bulk IN 0x81, 64 bytes each.
   ASSERT_EQ(e.configuration.size(), 32u);
-  EXPECT_EQ(e.configuration[4], 1);    // bNumInterfaces
-  EXPECT_EQ(e.configuration[9 + 4], 2);  // bNumEndpoints
+  EXPECT_EQ(e.configuration[4], 1);         // bNumInterfaces
+  EXPECT_EQ(e.configuration[9 + 4], 2);     // bNumEndpoints
   EXPECT_EQ(e.configuration[9 + 5], 0xFF);  // vendor specific
   EXPECT_EQ(e.configuration[18 + 2], 0x01);
   EXPECT_EQ(e.configuration[18 + 3], 2);
@@ -121,7 +123,8 @@ TEST_F(EmuBoot, EnumeratesLikeLinuxDoes) {
   EXPECT_TRUE(host.GetDescriptor(1, 0, 18).ok);
   EXPECT_EQ(dwc2_model_error(emu_->usb()), nullptr) << dwc2_model_error(emu_->usb());
   std::printf("enumerated and configured after %llu cycles from reset: %llu instructions\n",
-              static_cast<unsigned long long>(emu_->cycles()), static_cast<unsigned long long>(emu_->instructions()));
+              static_cast<unsigned long long>(emu_->cycles()),
+              static_cast<unsigned long long>(emu_->instructions()));
 }
 
 // ---- the harness's own stops, on hand-assembled images ----

@@ -193,11 +193,11 @@ struct F411Emu::Impl {
   uint64_t cycles = 0, instructions = 0, sleep_cycles = 0, wfi_count = 0, resets = 0;
   uint64_t stop_at = kNever;
   uint32_t last_pc = 0;
-  uint32_t expect_pc = 0;   // the address after the last instruction (0: after a jump made by the harness)
-  bool want_wfi = false;    // stopped at a WFI
+  uint32_t expect_pc = 0;  // the address after the last instruction (0: after a jump made by the harness)
+  bool want_wfi = false;   // stopped at a WFI
   uint32_t wfi_pc = 0;
   bool sleeping = false;
-  bool want_return = false; // stopped at an EXC_RETURN address
+  bool want_return = false;  // stopped at an EXC_RETURN address
   uint32_t exc_return = 0;
 
   // RCC, flash interface, PWR.
@@ -235,9 +235,9 @@ struct F411Emu::Impl {
   struct Active {
     uint32_t exception;
     int priority;
-    uint64_t entered;     // cycle of entry
-    uint64_t preempted;   // cycles spent in exceptions nested in this one
-    uint32_t sp_after;    // SP with the frame pushed
+    uint64_t entered;    // cycle of entry
+    uint64_t preempted;  // cycles spent in exceptions nested in this one
+    uint32_t sp_after;   // SP with the frame pushed
     bool fp_frame;
     bool dwt_seen = false;
     uint32_t dwt_first = 0, dwt_last = 0;
@@ -260,7 +260,8 @@ struct F411Emu::Impl {
     const bool wide = last_pc >= kFlashBase && insn.size() > (last_pc - kFlashBase) / 2 &&
                       insn[(last_pc - kFlashBase) / 2].size == 4;
     if (wide) {
-      std::snprintf(buf, sizeof(buf), " at pc 0x%08" PRIx32 " (instruction %04x %04x)", last_pc, hw[0], hw[1]);
+      std::snprintf(buf, sizeof(buf), " at pc 0x%08" PRIx32 " (instruction %04x %04x)", last_pc, hw[0],
+                    hw[1]);
     } else {
       std::snprintf(buf, sizeof(buf), " at pc 0x%08" PRIx32 " (instruction %04x)", last_pc, hw[0]);
     }
@@ -302,14 +303,16 @@ struct F411Emu::Impl {
     const uint32_t p = 2 * (((rcc_pllcfgr >> 16) & 3u) + 1), q = (rcc_pllcfgr >> 24) & 0xFu;
     char buf[160];
     if (m < 2 || n < 50 || n > 432 || q < 2) {
-      std::snprintf(buf, sizeof(buf), "PLL switched on with PLLM %u, PLLN %u, PLLQ %u (RM0383 6.3.2)", m, n, q);
+      std::snprintf(buf, sizeof(buf), "PLL switched on with PLLM %u, PLLN %u, PLLQ %u (RM0383 6.3.2)", m, n,
+                    q);
       Fail(buf);
       return;
     }
     const uint32_t in = PllInputHz() / m;
     const uint64_t vco = uint64_t(in) * n;
     if (in < 950000 || in > 2100000 || vco < 100000000 || vco > 432000000 || vco / p > 100000000) {
-      std::snprintf(buf, sizeof(buf), "PLL out of range: input %u Hz, VCO %" PRIu64 " Hz (RM0383 6.3.2)", in, vco);
+      std::snprintf(buf, sizeof(buf), "PLL out of range: input %u Hz, VCO %" PRIu64 " Hz (RM0383 6.3.2)", in,
+                    vco);
       Fail(buf);
     }
   }
@@ -344,8 +347,8 @@ struct F411Emu::Impl {
       return;
     }
     if (hclk > 84000000 && ((pwr_cr >> 14) & 3u) != 3u) {
-      std::snprintf(buf, sizeof(buf), "HCLK %u Hz above 84 MHz without voltage scale 1 (PWR_CR.VOS = %u)", hclk,
-                    (pwr_cr >> 14) & 3u);
+      std::snprintf(buf, sizeof(buf), "HCLK %u Hz above 84 MHz without voltage scale 1 (PWR_CR.VOS = %u)",
+                    hclk, (pwr_cr >> 14) & 3u);
       Fail(buf);
       return;
     }
@@ -583,7 +586,8 @@ struct F411Emu::Impl {
       return;
     }
     if (!(vector & 1u) || vector < kFlashBase || vector >= kFlashBase + flash.size()) {
-      std::snprintf(buf, sizeof(buf), "exception %u: vector 0x%08x is not Thumb code in flash", exception, vector);
+      std::snprintf(buf, sizeof(buf), "exception %u: vector 0x%08x is not Thumb code in flash", exception,
+                    vector);
       Fail(buf);
       return;
     }
@@ -595,10 +599,12 @@ struct F411Emu::Impl {
     uint32_t sp = Reg(UC_ARM_REG_SP);
     uint32_t xpsr = Reg(UC_ARM_REG_XPSR);
     const uint32_t frame = fp ? 26 * 4 : 8 * 4;
-    if ((sp - frame) & 4u) xpsr |= 1u << 9;  // the frame is aligned to 8 bytes; bit 9 says it was
-    else xpsr &= ~(1u << 9);
+    if ((sp - frame) & 4u)
+      xpsr |= 1u << 9;  // the frame is aligned to 8 bytes; bit 9 says it was
+    else
+      xpsr &= ~(1u << 9);
     sp = ((sp - frame) & ~7u);
-    const uint32_t regs[8] = {Reg(UC_ARM_REG_R0), Reg(UC_ARM_REG_R1), Reg(UC_ARM_REG_R2), Reg(UC_ARM_REG_R3),
+    const uint32_t regs[8] = {Reg(UC_ARM_REG_R0),  Reg(UC_ARM_REG_R1), Reg(UC_ARM_REG_R2), Reg(UC_ARM_REG_R3),
                               Reg(UC_ARM_REG_R12), Reg(UC_ARM_REG_LR), Reg(UC_ARM_REG_PC), xpsr};
     for (int i = 0; i < 8; ++i) WriteWord(sp + 4 * i, regs[i]);
     SetReg(UC_ARM_REG_SP, sp);
@@ -622,7 +628,8 @@ struct F411Emu::Impl {
       return;
     }
     Active a = active.back();
-    if ((value & 0xFFFFFF00u) != 0xFFFFFF00u || (value & 0xFu) != 9u || (((value >> 4) & 1u) == 0) != a.fp_frame) {
+    if ((value & 0xFFFFFF00u) != 0xFFFFFF00u || (value & 0xFu) != 9u ||
+        (((value >> 4) & 1u) == 0) != a.fp_frame) {
       char buf[96];
       std::snprintf(buf, sizeof(buf), "unexpected EXC_RETURN 0x%08x", value);
       Fail(buf);
@@ -739,12 +746,15 @@ struct F411Emu::Impl {
   // SHPR) and for GPIO BSRR halves; anywhere else they stop the run.
   uint32_t Access(uint32_t address, unsigned size, bool write, uint32_t value) {
     if (!error.empty()) return 0;
-    if (address >= 0x40000000 && address < 0x40010000) cycles += kApb1Access;
-    else if (address < kPpb) cycles += kAhbAccess;
+    if (address >= 0x40000000 && address < 0x40010000)
+      cycles += kApb1Access;
+    else if (address < kPpb)
+      cycles += kAhbAccess;
     Sync(cycles);
     const uint32_t word = address & ~3u;
     const unsigned shift = 8 * (address & 3u);
-    const bool byte_ok = (address >= 0xE000E400 && address < 0xE000E460) || (address >= 0xE000ED18 && address < 0xE000ED24);
+    const bool byte_ok =
+        (address >= 0xE000E400 && address < 0xE000E460) || (address >= 0xE000ED18 && address < 0xE000ED24);
     const bool bsrr = (word == kGpioA + 0x18 || word == kGpioB + 0x18 || word == kGpioC + 0x18) && size == 2;
     if (size != 4 && !byte_ok && !bsrr) {
       FailAt(write ? "sub-word write to register" : "sub-word read of register", address, size);
@@ -784,9 +794,12 @@ struct F411Emu::Impl {
   bool ClockOn(uint32_t address, bool quiet) {
     bool on = true;
     const char* what = nullptr;
-    if (address >= kTim2 && address < kTim2 + 0x400) on = rcc_apb1enr & 1u, what = "TIM2";
-    else if (address >= kTim3 && address < kTim3 + 0x400) on = rcc_apb1enr & 2u, what = "TIM3";
-    else if (address >= kPwr && address < kPwr + 0x400) on = rcc_apb1enr & (1u << 28), what = "PWR";
+    if (address >= kTim2 && address < kTim2 + 0x400)
+      on = rcc_apb1enr & 1u, what = "TIM2";
+    else if (address >= kTim3 && address < kTim3 + 0x400)
+      on = rcc_apb1enr & 2u, what = "TIM3";
+    else if (address >= kPwr && address < kPwr + 0x400)
+      on = rcc_apb1enr & (1u << 28), what = "PWR";
     else if (address >= kGpioA && address < kGpioC + 0x400) {
       const uint32_t port = (address - kGpioA) / 0x400;
       on = (rcc_ahb1enr >> port) & 1u;
@@ -878,7 +891,7 @@ struct F411Emu::Impl {
       case kFlashIf + 0x00: return flash_acr;
       case kPwr + 0x00: return pwr_cr;
       case kPwr + 0x04: return ((pwr_cr >> 14) & 3u) ? 1u << 14 : 0u;  // VOSRDY
-      case 0xE000E004: return 2;  // ICTR: 96 interrupt lines
+      case 0xE000E004: return 2;                                       // ICTR: 96 interrupt lines
       case 0xE000E010: {
         const uint32_t v = systick.ctrl;
         if (!peek) systick.ctrl &= ~(1u << 16);  // COUNTFLAG clears on read
@@ -891,7 +904,7 @@ struct F411Emu::Impl {
         return uint32_t((systick.zero_at - cycles) / div) % (systick.load + 1);
       }
       case 0xE000E01C: return 0x40000000u | (96000000u / 8u / 100u - 1u);  // CALIB: no reference clock, 10 ms
-      case 0xE000ED00: return 0x410FC241;  // CPUID: Cortex-M4 r0p1
+      case 0xE000ED00: return 0x410FC241;                                  // CPUID: Cortex-M4 r0p1
       case 0xE000ED04: return active.empty() ? 0u : active.back().exception;  // ICSR.VECTACTIVE
       case 0xE000ED08: return vtor;
       case 0xE000ED0C: return 0xFA050000u | (aircr & 0x700u);
@@ -938,7 +951,8 @@ struct F411Emu::Impl {
     switch (off) {
       case 0x00:
         if (v & 0x7Au) {
-          std::snprintf(buf, sizeof(buf), "%s CR1 0x%x: one-pulse, down/centre counting or ARR preload", t.name, v);
+          std::snprintf(buf, sizeof(buf), "%s CR1 0x%x: one-pulse, down/centre counting or ARR preload",
+                        t.name, v);
           Fail(std::string(buf) + " are not modelled");
           return;
         }
@@ -1031,7 +1045,8 @@ struct F411Emu::Impl {
     if (a >= kOtgFs && a < kOtgFs + DWC2_WINDOW_SIZE_BYTES) {
       if (a - kOtgFs == 0x804 && !(v & 2u) && usb_clk != 48000000u) {  // DCTL: soft-connect
         char buf[96];
-        std::snprintf(buf, sizeof(buf), "USB connected with a %u Hz USB clock (the core needs 48 MHz)", usb_clk);
+        std::snprintf(buf, sizeof(buf), "USB connected with a %u Hz USB clock (the core needs 48 MHz)",
+                      usb_clk);
         Fail(buf);
         return;
       }
@@ -1040,8 +1055,8 @@ struct F411Emu::Impl {
     }
     switch (a) {
       case kRcc + 0x00: {
-        uint32_t cr = (rcc_cr & ~0x010D0001u) | (v & 0x010D0001u);  // HSION, HSEON, HSEBYP, CSSON, PLLON
-        cr |= 2u;                                                    // HSIRDY
+        uint32_t cr = (rcc_cr & ~0x010D0001u) | (v & 0x010D0001u);    // HSION, HSEON, HSEBYP, CSSON, PLLON
+        cr |= 2u;                                                     // HSIRDY
         cr = (cr & (1u << 16)) ? cr | (1u << 17) : cr & ~(1u << 17);  // the crystal starts at once
         if ((cr & (1u << 24)) && !(rcc_cr & (1u << 24))) {
           CheckPll();
@@ -1106,7 +1121,8 @@ struct F411Emu::Impl {
       case 0xE000ED04:
         if (v & (1u << 25)) systick_pending = false;
         if (v & (1u << 26)) systick_pending = true;
-        if (v & ~((1u << 25) | (1u << 26))) Fail("ICSR bits other than PENDSTSET / PENDSTCLR are not modelled");
+        if (v & ~((1u << 25) | (1u << 26)))
+          Fail("ICSR bits other than PENDSTSET / PENDSTCLR are not modelled");
         return;
       case 0xE000ED08: vtor = v & 0xFFFFFE00u; return;
       case 0xE000ED0C:
@@ -1211,9 +1227,9 @@ struct F411Emu::Impl {
       e->exc_return = uint32_t(address) | 1u;
       return false;
     }
-    const char* what = type == UC_MEM_FETCH_UNMAPPED ? "instruction fetch from unmapped address"
+    const char* what = type == UC_MEM_FETCH_UNMAPPED   ? "instruction fetch from unmapped address"
                        : type == UC_MEM_WRITE_UNMAPPED ? "write to unmapped address"
-                                                        : "read of unmapped address";
+                                                       : "read of unmapped address";
     e->FailAt(what, uint32_t(address), unsigned(size));
     return false;
   }
@@ -1337,8 +1353,10 @@ F411Emu::F411Emu(const ElfImage& image, const EmuOptions& options) : impl_(new I
   if (err == UC_ERR_OK) err = uc_ctl_set_cpu_model(e.uc, UC_CPU_ARM_CORTEX_M4);
   // Flash at 0x0800_0000 and its alias at 0 (BOOT0 low), read-only; SRAM; the system-memory page with the
   // unique id.
-  if (err == UC_ERR_OK) err = uc_mem_map_ptr(e.uc, kFlashBase, kFlashSize, UC_PROT_READ | UC_PROT_EXEC, e.flash.data());
-  if (err == UC_ERR_OK) err = uc_mem_map_ptr(e.uc, 0, kFlashSize, UC_PROT_READ | UC_PROT_EXEC, e.flash.data());
+  if (err == UC_ERR_OK)
+    err = uc_mem_map_ptr(e.uc, kFlashBase, kFlashSize, UC_PROT_READ | UC_PROT_EXEC, e.flash.data());
+  if (err == UC_ERR_OK)
+    err = uc_mem_map_ptr(e.uc, 0, kFlashSize, UC_PROT_READ | UC_PROT_EXEC, e.flash.data());
   if (err == UC_ERR_OK) err = uc_mem_map(e.uc, kSramBase, kSramSize, UC_PROT_ALL);
   if (err == UC_ERR_OK) err = uc_mem_map(e.uc, kSysMemPage, 0x400, UC_PROT_READ);
   if (err == UC_ERR_OK) {
@@ -1357,16 +1375,21 @@ F411Emu::F411Emu(const ElfImage& image, const EmuOptions& options) : impl_(new I
   if (err == UC_ERR_OK) err = e.MapWindow(kOtgFs, kOtgFsSize);
   if (err == UC_ERR_OK) err = e.MapWindow(kPpb, kPpbSize);
   uc_hook h;
-  if (err == UC_ERR_OK) err = uc_hook_add(e.uc, &h, UC_HOOK_CODE, reinterpret_cast<void*>(&Impl::OnCode), impl_.get(), 1, 0);
+  if (err == UC_ERR_OK)
+    err = uc_hook_add(e.uc, &h, UC_HOOK_CODE, reinterpret_cast<void*>(&Impl::OnCode), impl_.get(), 1, 0);
   if (err == UC_ERR_OK) {
-    err = uc_hook_add(e.uc, &h, UC_HOOK_MEM_UNMAPPED, reinterpret_cast<void*>(&Impl::OnUnmapped), impl_.get(), 1, 0);
+    err = uc_hook_add(e.uc, &h, UC_HOOK_MEM_UNMAPPED, reinterpret_cast<void*>(&Impl::OnUnmapped), impl_.get(),
+                      1, 0);
   }
   if (err == UC_ERR_OK) {
-    err = uc_hook_add(e.uc, &h, UC_HOOK_MEM_PROT, reinterpret_cast<void*>(&Impl::OnProtected), impl_.get(), 1, 0);
+    err = uc_hook_add(e.uc, &h, UC_HOOK_MEM_PROT, reinterpret_cast<void*>(&Impl::OnProtected), impl_.get(), 1,
+                      0);
   }
-  if (err == UC_ERR_OK) err = uc_hook_add(e.uc, &h, UC_HOOK_INTR, reinterpret_cast<void*>(&Impl::OnInterrupt), impl_.get(), 1, 0);
+  if (err == UC_ERR_OK)
+    err = uc_hook_add(e.uc, &h, UC_HOOK_INTR, reinterpret_cast<void*>(&Impl::OnInterrupt), impl_.get(), 1, 0);
   if (err == UC_ERR_OK) {
-    err = uc_hook_add(e.uc, &h, UC_HOOK_INSN_INVALID, reinterpret_cast<void*>(&Impl::OnInvalid), impl_.get(), 1, 0);
+    err = uc_hook_add(e.uc, &h, UC_HOOK_INSN_INVALID, reinterpret_cast<void*>(&Impl::OnInvalid), impl_.get(),
+                      1, 0);
   }
   if (err != UC_ERR_OK) e.error = std::string("unicorn: ") + uc_strerror(err);
 }

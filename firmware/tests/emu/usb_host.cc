@@ -39,8 +39,14 @@ int UsbHost::Out(uint8_t ep, const uint8_t* data, size_t size, uint64_t timeout_
 UsbHost::Control UsbHost::ControlTransfer(uint8_t bm, uint8_t req, uint16_t value, uint16_t index,
                                           uint16_t length) {
   Control c;
-  const uint8_t setup[8] = {bm, req, uint8_t(value), uint8_t(value >> 8), uint8_t(index), uint8_t(index >> 8),
-                            uint8_t(length), uint8_t(length >> 8)};
+  const uint8_t setup[8] = {bm,
+                            req,
+                            uint8_t(value),
+                            uint8_t(value >> 8),
+                            uint8_t(index),
+                            uint8_t(index >> 8),
+                            uint8_t(length),
+                            uint8_t(length >> 8)};
   if (dwc2_model_setup(emu_->usb(), address_, setup) != DWC2_MODEL_ACK) {
     c.error = "SETUP not acknowledged";
     return c;
@@ -99,7 +105,8 @@ UsbHost::Enumeration UsbHost::Enumerate(uint8_t address) {
   dwc2_model_bus_reset(emu_->usb());
   if (!emu_->RunUs(100)) return e.error = emu_->error(), e;
   const Control first = GetDescriptor(1, 0, 64);
-  if (!first.ok || first.data.size() != 18) return fail("first device descriptor read (64 bytes at address 0)", first);
+  if (!first.ok || first.data.size() != 18)
+    return fail("first device descriptor read (64 bytes at address 0)", first);
   dwc2_model_bus_reset(emu_->usb());
   if (!emu_->RunUs(100)) return e.error = emu_->error(), e;
   const Control set = ControlTransfer(0x00, 5, address, 0, 0);

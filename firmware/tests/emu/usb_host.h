@@ -34,8 +34,8 @@ class UsbHost {
   struct Enumeration {
     bool ok = false;
     std::string error;
-    Bytes device;         // the 18-byte device descriptor
-    Bytes configuration;  // the whole configuration descriptor
+    Bytes device;                      // the 18-byte device descriptor
+    Bytes configuration;               // the whole configuration descriptor
     std::vector<std::string> strings;  // manufacturer, product, serial (ASCII from UTF-16LE)
   };
   // Waits for the device to pull D+ up, then enumerates it as Linux does and sets configuration 1, at

@@ -1,7 +1,8 @@
 // Issue 18: the flashed image on the emulated STM32F411 (firmware/tests/emu), driven by the host's real
 // device::Client over the in-process transport (deterministic: the board's time runs only while the host
-// waits). A 200-step scan program with four shots per step (the HIL tests' scan) and a camera model on the pins (each trigger edge
-// raises the exposure-active line 12 us later for 400 us). Checked against the emulator's own record:
+// waits). A 200-step scan program with four shots per step (the HIL tests' scan) and a camera model on the
+// pins (each trigger edge raises the exposure-active line 12 us later for 400 us). Checked against the
+// emulator's own record:
 //   - every TRIGGER_EVENT's time is the TIM2 count at which the trigger pin rose, exact to the tick, and its
 //     exposure-seen time the count TIM2's capture latched for the camera's edge;
 //   - the laser pins at each trigger edge are the shot's, the table position is the STEP pulses counted;
@@ -186,7 +187,8 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
     const uint32_t step = t.step_index.value_or(~0u);
     EXPECT_EQ(t.time_us, truth.tim2) << "step " << step << " shot " << int(t.shot) << ": not the TIM2 count";
     ASSERT_TRUE(t.exposure_seen_us.has_value()) << "step " << step << " shot " << int(t.shot);
-    EXPECT_EQ(*t.exposure_seen_us, exposure_rises[t.trigger_seq]) << "step " << step << " shot " << int(t.shot);
+    EXPECT_EQ(*t.exposure_seen_us, exposure_rises[t.trigger_seq])
+        << "step " << step << " shot " << int(t.shot);
     EXPECT_EQ(*t.exposure_seen_us, t.time_us + 12) << "the camera's 12 us latency";
     EXPECT_EQ(t.laser_mask, program.shots[t.shot].laser_mask);
     EXPECT_EQ(truth.lasers, program.shots[t.shot].laser_mask) << "step " << step << " shot " << int(t.shot);
@@ -219,7 +221,8 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
   const uint64_t cycles = emu.cycles() - start_cycles;
   std::printf(
       "scan of %u steps x %zu shots on the image: %.1f ms emulated, %llu instructions\n"
-      "  step interrupt (TIM3): %llu runs, worst %llu cycles (%.2f us), mean %.0f; DWT window in the image %llu\n"
+      "  step interrupt (TIM3): %llu runs, worst %llu cycles (%.2f us), mean %.0f; DWT window in the image "
+      "%llu\n"
       "  trigger/laser/exposure interrupt (TIM2): %llu runs, worst %llu cycles (%.2f us)\n"
       "  USB interrupt (OTG_FS): %llu runs, worst %llu cycles\n"
       "  stack high-water mark: %u bytes of 4096; asleep (WFI) %.1f %% of the time since power-on\n",
@@ -238,7 +241,8 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
 // would) ends in the image's fault handler, which switches the lasers off, records the fault
 // in RAM that survives the reset, and resets the chip. After the reset the record comes back over GET_DIAG.
 TEST(EmuFault, UnhandledInterruptIsRecordedAcrossTheResetAndReportedByGetDiag) {
-  if (!fw_emu::ImageExists(fw_emu::ImagePath())) GTEST_SKIP() << "no firmware image at " << fw_emu::ImagePath();
+  if (!fw_emu::ImageExists(fw_emu::ImagePath()))
+    GTEST_SKIP() << "no firmware image at " << fw_emu::ImagePath();
   fw_emu::EmuOptions options;
   options.stop_on_unhandled_interrupt = false;
   EmuBoard board(options);

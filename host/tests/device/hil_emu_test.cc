@@ -183,12 +183,14 @@ class HilEmuTest : public ::testing::Test {
     // into the edges once the program has been stopped.
     std::map<uint32_t, size_t> edge_at;
     for (size_t i = 0; i < edges.size(); ++i) edge_at[edges[i].tim2] = i;
-    EXPECT_LE(edges.size(), size_t(*triggers_seen_) + (safety_seen_ ? 2u : 0u)) << "trigger edges without events";
+    EXPECT_LE(edges.size(), size_t(*triggers_seen_) + (safety_seen_ ? 2u : 0u))
+        << "trigger edges without events";
     for (const auto& [key, t] : shots) {
       const auto [step, shot] = key;
       const auto found = edge_at.find(uint32_t(t.time_us));
-      ASSERT_NE(found, edge_at.end()) << "step " << step << " shot " << int(shot) << ": no trigger edge at TIM2 count "
-                                      << t.time_us << " (less device time 0)";
+      ASSERT_NE(found, edge_at.end())
+          << "step " << step << " shot " << int(shot) << ": no trigger edge at TIM2 count " << t.time_us
+          << " (less device time 0)";
       const Truth& truth = edges[found->second];
       if (!safety_seen_) {
         EXPECT_EQ(found->second, t.trigger_seq) << "step " << step << " shot " << int(shot);
