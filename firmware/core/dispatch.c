@@ -13,9 +13,11 @@
 
 /* The largest answer is DIAG (41 bytes), then STATUS (40). */
 #define DISP_ANSWER_PAYLOAD_MAX (PROTO_DIAG_SIZE > PROTO_STATUS_SIZE ? PROTO_DIAG_SIZE : PROTO_STATUS_SIZE)
-#define DISP_ANSWER_MAX (PROTO_COBS_MAX_ENCODED(PROTO_HEADER_SIZE + DISP_ANSWER_PAYLOAD_MAX + PROTO_CRC_SIZE) + 1)
+#define DISP_ANSWER_MAX \
+  (PROTO_COBS_MAX_ENCODED(PROTO_HEADER_SIZE + DISP_ANSWER_PAYLOAD_MAX + PROTO_CRC_SIZE) + 1)
 PROTO_STATIC_ASSERT(DISP_ANSWER_MAX <= 64, "answers stay small");
-PROTO_STATIC_ASSERT(PROTO_INFO_SIZE <= DISP_ANSWER_PAYLOAD_MAX && PROTO_PONG_SIZE <= DISP_ANSWER_PAYLOAD_MAX &&
+PROTO_STATIC_ASSERT(PROTO_INFO_SIZE <= DISP_ANSWER_PAYLOAD_MAX &&
+                        PROTO_PONG_SIZE <= DISP_ANSWER_PAYLOAD_MAX &&
                         PROTO_ACK_SIZE <= DISP_ANSWER_PAYLOAD_MAX,
                     "DIAG or STATUS is the largest answer");
 
@@ -96,7 +98,8 @@ static void execute(const proto_msg_t* cmd, proto_msg_t* reply, bool* abort_afte
       info->proto_minor = PROTO_VERSION_MINOR;
       info->capabilities = PROTO_CAP_STEPPER | PROTO_CAP_LASERS | PROTO_CAP_TRIGGER_OUT | PROTO_CAP_PROGRAM |
                            PROTO_CAP_LASER_SAFETY | (seq_has_exposure_input() ? PROTO_CAP_EXPOSURE_IN : 0u) |
-                           (hal_is_simulated() ? PROTO_CAP_SIMULATED : 0u) | (diag_supported() ? PROTO_CAP_DIAG : 0u);
+                           (hal_is_simulated() ? PROTO_CAP_SIMULATED : 0u) |
+                           (diag_supported() ? PROTO_CAP_DIAG : 0u);
       info->fw_major = FW_VERSION_MAJOR;
       info->fw_minor = FW_VERSION_MINOR;
       info->fw_patch = FW_VERSION_PATCH;
@@ -123,7 +126,8 @@ static void execute(const proto_msg_t* cmd, proto_msg_t* reply, bool* abort_afte
       }
       proto_msg_init(reply, PROTO_DIAG, cmd->seq);
       proto_diag_t* out = &reply->body.diag;
-      out->flags = (uint8_t)((d.cycles_valid ? PROTO_DIAG_CYCLES_VALID : 0u) | (d.fault_valid ? PROTO_DIAG_FAULT_VALID : 0u));
+      out->flags = (uint8_t)((d.cycles_valid ? PROTO_DIAG_CYCLES_VALID : 0u) |
+                             (d.fault_valid ? PROTO_DIAG_FAULT_VALID : 0u));
       if (d.cycles_valid) {
         out->cpu_hz = d.cpu_hz;
         out->step_isr_cycles_max = d.step_isr_cycles_max;

@@ -308,7 +308,7 @@ typedef struct {              /* STATUS */
 #define PROTO_STATUS_SIZE (4 + 8 + 1 + 1 + 1 + 1 + 4 + 4 + 4 + 4 + 4 + 4)
 
 /* DIAG.flags */
-#define PROTO_DIAG_CYCLES_VALID (1u << 0) /* the board counts CPU cycles: the step_isr_* fields are measured */
+#define PROTO_DIAG_CYCLES_VALID (1u << 0) /* the board counts CPU cycles: the step_isr_* fields hold them */
 #define PROTO_DIAG_FAULT_VALID (1u << 1)  /* a fault was recorded before the last reset: the fault_* fields */
 
 typedef struct {                 /* DIAG: what only the board knows about itself (answer to GET_DIAG) */

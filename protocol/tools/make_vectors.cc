@@ -298,14 +298,15 @@ int main(int argc, char** argv) {
                    0x61000000,
                    0x00000400,
                    0x40000000};
-    v.push_back({"22_diag",
-                 "DIAG answering seq 15: step interrupt at most 228 cycles at 96 MHz, a HardFault before the reset",
-                 m,
-                 R"({"flags": 3, "cpu_hz": 96000000, "step_isr_cycles_max": 228, "step_isr_cycles_last": 215,
+    v.push_back(
+        {"22_diag",
+         "DIAG answering seq 15: step interrupt at most 228 cycles at 96 MHz, a HardFault before the reset",
+         m,
+         R"({"flags": 3, "cpu_hz": 96000000, "step_isr_cycles_max": 228, "step_isr_cycles_last": 215,
      "fault_count": 1, "fault_vector": 3, "fault_pc": 134222500, "fault_lr": 134221617, "fault_psr": 1627389952,
      "fault_cfsr": 1024, "fault_hfsr": 1073741824})",
-                 {},
-                 ""});
+         {},
+         ""});
   }
 
   // Invalid frames: what a decoder must refuse.

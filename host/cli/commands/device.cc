@@ -46,7 +46,7 @@ Result<std::unique_ptr<device::Client>> ConnectBoard(const DeviceOptions& option
 std::string Capabilities(uint32_t caps) {
   static const std::pair<uint32_t, const char*> kNames[] = {
       {1u << 0, "stepper"}, {1u << 1, "lasers"},       {1u << 2, "trigger-out"}, {1u << 3, "exposure-in"},
-      {1u << 4, "program"}, {1u << 5, "laser-safety"}, {1u << 6, "diag"},          {1u << 31, "simulated"}};
+      {1u << 4, "program"}, {1u << 5, "laser-safety"}, {1u << 6, "diag"},        {1u << 31, "simulated"}};
   std::string out;
   for (const auto& [bit, name] : kNames) {
     if (caps & bit) out += (out.empty() ? "" : " ") + std::string(name);
@@ -105,8 +105,8 @@ int RunDeviceStatus(const Context& context, const DeviceOptions& options) {
                << " bad frames, " << status->events_dropped << " events dropped\n";
   auto diag = (*client)->GetDiag();
   if (!diag.ok() && diag.status().code() == StatusCode::kFailedPrecondition) {  // a protocol 1.0 board
-    *context.out << "diagnostics:  not reported by this firmware (protocol " << (*client)->info().protocol_major
-                 << "." << (*client)->info().protocol_minor << ")\n";
+    *context.out << "diagnostics:  not reported by this firmware (protocol "
+                 << (*client)->info().protocol_major << "." << (*client)->info().protocol_minor << ")\n";
     return kExitOk;
   }
   if (!diag.ok()) return ReportStatus(context, "device status", diag.status());
@@ -121,13 +121,13 @@ int RunDeviceStatus(const Context& context, const DeviceOptions& options) {
   }
   if (diag->fault.has_value()) {
     const device::BoardDiag::Fault& f = *diag->fault;
-    *context.out << "last fault:   " << (f.vector == 3 ? std::string("HardFault")
-                                                       : f.vector >= 16 ? "interrupt " + std::to_string(f.vector - 16) +
-                                                                              " without a handler"
-                                                                        : "exception " + std::to_string(f.vector))
+    *context.out << "last fault:   "
+                 << (f.vector == 3    ? std::string("HardFault")
+                     : f.vector >= 16 ? "interrupt " + std::to_string(f.vector - 16) + " without a handler"
+                                      : "exception " + std::to_string(f.vector))
                  << " before the last reset (" << f.count << " since power-on): pc 0x" << std::hex << f.pc
-                 << ", lr 0x" << f.lr << ", xpsr 0x" << f.psr << ", cfsr 0x" << f.cfsr << ", hfsr 0x" << f.hfsr
-                 << std::dec << "\n";
+                 << ", lr 0x" << f.lr << ", xpsr 0x" << f.psr << ", cfsr 0x" << f.cfsr << ", hfsr 0x"
+                 << f.hfsr << std::dec << "\n";
   } else {
     *context.out << "last fault:   none recorded\n";
   }
@@ -306,7 +306,8 @@ int RunDeviceFlash(const Context& context, const DeviceOptions& options, const s
 }
 
 void RegisterDevice(CLI::App& app, const Context& context, int* exit_code) {
-  CLI::App* sub = app.add_subcommand("device", "Talk to the scanner board: list, info, status, ping, move, laser, flash");
+  CLI::App* sub =
+      app.add_subcommand("device", "Talk to the scanner board: list, info, status, ping, move, laser, flash");
   sub->require_subcommand(1);
   static DeviceOptions options;
   static int count = 20;

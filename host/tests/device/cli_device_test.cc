@@ -60,7 +60,8 @@ TEST_F(CliDeviceTest, ListInfoPingMoveLaser) {
   Output status;
   ASSERT_EQ(RunDeviceStatus(status.context, DeviceOptions{}), kExitOk) << status.err.str();
   EXPECT_NE(status.out.str().find("state:        idle"), std::string::npos) << status.out.str();
-  EXPECT_NE(status.out.str().find("step irq:     not measured on this board"), std::string::npos) << status.out.str();
+  EXPECT_NE(status.out.str().find("step irq:     not measured on this board"), std::string::npos)
+      << status.out.str();
   EXPECT_NE(status.out.str().find("last fault:   none recorded"), std::string::npos) << status.out.str();
   Output ping;
   ASSERT_EQ(RunDevicePing(ping.context, DeviceOptions{}, 12), kExitOk) << ping.err.str();

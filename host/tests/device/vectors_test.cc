@@ -186,7 +186,9 @@ class DiagReplayBoard : public VirtualBoard {
  private:
   void Answer(const proto_msg_t& cmd) {
     proto_msg_t reply;
-    const char* file = cmd.type == PROTO_GET_INFO ? "02_info.hex" : cmd.type == PROTO_GET_DIAG ? "22_diag.hex" : nullptr;
+    const char* file = cmd.type == PROTO_GET_INFO   ? "02_info.hex"
+                       : cmd.type == PROTO_GET_DIAG ? "22_diag.hex"
+                                                    : nullptr;
     if (file == nullptr) return;
     const std::vector<uint8_t> wire = ReadHexVector(file);
     ASSERT_EQ(proto_decode_frame(wire.data(), wire.size(), &reply), 0);

@@ -30,8 +30,7 @@ namespace {
 
 bool IsReply(const proto_msg_t& m) {
   return m.type == PROTO_ACK || m.type == PROTO_NACK || m.type == PROTO_INFO || m.type == PROTO_PONG ||
-         m.type == PROTO_DIAG ||
-         (m.type == PROTO_STATUS && m.body.status.cause == PROTO_CAUSE_REPLY);
+         m.type == PROTO_DIAG || (m.type == PROTO_STATUS && m.body.status.cause == PROTO_CAUSE_REPLY);
 }
 
 // Whether `answer` answers `request` (same seq is checked by the caller).
@@ -490,9 +489,9 @@ Result<BoardStatus> Client::GetStatus() {
 
 Result<BoardDiag> Client::GetDiag() {
   if (!(info_.capabilities & PROTO_CAP_DIAG)) {
-    return FailedPreconditionError("the board does not answer GET_DIAG (protocol " +
-                              std::to_string(info_.protocol_major) + "." + std::to_string(info_.protocol_minor) +
-                              ", capability 'diag' not advertised)");
+    return FailedPreconditionError(
+        "the board does not answer GET_DIAG (protocol " + std::to_string(info_.protocol_major) + "." +
+        std::to_string(info_.protocol_minor) + ", capability 'diag' not advertised)");
   }
   Message request, answer;
   proto_msg_init(&request.msg, PROTO_GET_DIAG, 0);
