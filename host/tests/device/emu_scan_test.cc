@@ -12,6 +12,7 @@
 // pin edge, instructions and emulated time.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <map>
 #include <utility>
@@ -160,13 +161,30 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
   uint8_t lasers = 0;
   int32_t position = 0, dir = 1;
   int step_pulses = 0;
+  // Pulse widths: STEP high (the driver's minimum: DRV8825 1.9 us, A4988 1 us) and the trigger pulse
+  // (SET_CONFIG trigger_pulse_us, made by TIM2's compares: exact in ticks).
+  uint64_t step_rose = 0, step_min = ~0ull, step_max = 0;
+  uint32_t trigger_rose = 0;
+  int trigger_pulses_right = 0;
   for (const fw_emu::PinEdge& e : emu.edges()) {
     if (e.port == fw_emu::kPortB && e.pin == 13) lasers = uint8_t((lasers & ~1u) | (e.level ? 1u : 0u));
     if (e.port == fw_emu::kPortB && e.pin == 14) lasers = uint8_t((lasers & ~2u) | (e.level ? 2u : 0u));
     if (e.port == fw_emu::kPortB && e.pin == 5) dir = e.level ? 1 : -1;
-    if (e.port == fw_emu::kPortB && e.pin == 4 && e.level) position += dir, ++step_pulses;
+    if (e.port == fw_emu::kPortB && e.pin == 4 && e.level) position += dir, ++step_pulses, step_rose = e.cycle;
+    if (e.port == fw_emu::kPortB && e.pin == 4 && !e.level && step_rose != 0) {
+      step_min = std::min(step_min, e.cycle - step_rose);
+      step_max = std::max(step_max, e.cycle - step_rose);
+    }
     if (e.port == fw_emu::kPortA && e.pin == 15 && e.level) edges.push_back({e.tim2, lasers, position});
+    if (e.port == fw_emu::kPortA && e.pin == 15) {
+      if (e.level) trigger_rose = e.tim2;
+      if (!e.level && e.tim2 - trigger_rose == Config().trigger_pulse_us) ++trigger_pulses_right;
+    }
   }
+  EXPECT_GE(step_min, 190u * 96u / 100u) << "a STEP pulse shorter than the DRV8825's 1.9 us";
+  EXPECT_EQ(trigger_pulses_right, int(triggers.size())) << "trigger pulses not exactly 50 us";
+  std::printf("STEP pulse high %.2f-%.2f us; %d trigger pulses of exactly %u us\n", step_min / 96.0,
+              step_max / 96.0, trigger_pulses_right, Config().trigger_pulse_us);
   // Device time is TIM2's count less the count at fw_init (core/timebase.c g_tb.boot_counter, the first
   // word of the image's g_tb).
   const uint32_t g_tb = emu.image().Symbol("g_tb");
