@@ -35,7 +35,8 @@ function(rotoscan_add_module)
     EXPORT_NAME ${ARG_NAME}
     OUTPUT_NAME rotoscan_${ARG_NAME}
     VERSION ${PROJECT_VERSION}
-    SOVERSION ${PROJECT_VERSION_MAJOR}.${PROJECT_VERSION_MINOR})
+    SOVERSION ${PROJECT_VERSION_MAJOR}.${PROJECT_VERSION_MINOR}
+    INSTALL_RPATH "$ORIGIN")  # the other modules lie beside it (the top-level CMakeLists.txt)
   install(TARGETS ${target} EXPORT rotoscanTargets
     LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
     ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}

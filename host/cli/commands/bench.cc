@@ -8,11 +8,11 @@
 #include <tuple>
 #include <vector>
 
-#include "calibrate.h"
 #include "command.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/mesh/mesh.h"
 #include "rotoscan/pipeline/accuracy.h"
+#include "rotoscan/pipeline/calibrate.h"
 #include "rotoscan/sim/scene.h"
 #include "rotoscan/sim/simulate.h"
 #include "rotoscan/pipeline/evaluate.h"
@@ -23,7 +23,7 @@ struct BenchCommandOptions {
   std::string what;
   std::vector<double> distances;
   int steps = 4;
-  bool calib = false;   // accuracy with a rig calibrated from rendered bundles (commands/calibrate.h)
+  bool calib = false;   // accuracy with a rig calibrated from rendered bundles (pipeline/calibrate.h)
   double k1 = -0.2;     // lens distortion of the virtual camera in that mode
   int board_poses = 0;  // in that mode: add a hand-held checkerboard bundle of that many poses
   std::string target = "object";  // in that mode: object (the paper's) | board (the demo's table board)
@@ -159,9 +159,9 @@ int RunBenchCalibratedAccuracy(const BenchCommandOptions& o, const Context& cont
       code = kExitUsage;
       break;
     }
-    CalibratedAccuracyOptions options;
+    pipeline::CalibratedAccuracyOptions options;
     if (o.target == "board") {
-      options.target = CalibrationTarget::kTableBoard;
+      options.target = pipeline::CalibrationTarget::kTableBoard;
       options.calibration_steps = 16;
     } else if (o.target != "object") {
       *context.err << "rotoscan bench: --target must be object or board\n";
@@ -174,7 +174,7 @@ int RunBenchCalibratedAccuracy(const BenchCommandOptions& o, const Context& cont
     options.scan_steps = o.steps;
     options.board_poses = o.board_poses;
     options.work_dir = work;
-    auto a = RunCalibratedPlaneAccuracy(options, context.progress);
+    auto a = pipeline::RunCalibratedPlaneAccuracy(options, context.progress);
     if (!a.ok()) {
       code = ReportStatus(context, "bench", a.status());
       break;

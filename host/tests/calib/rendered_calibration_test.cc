@@ -1,7 +1,7 @@
 // The rig calibration on rendered calibration bundles, against the virtual scanner's truth: the table
 // checkerboard in the demo's three placements (data/scenes/calibration*.json), rendered with the default
 // noise and speckle, turned through kSteps table angles each, then `rotoscan calibrate`'s observations
-// (commands/calibrate.h), the paper's three steps and the joint refinement. Targets (DESIGN.md, issue 5):
+// (pipeline/calibrate.h), the paper's three steps and the joint refinement. Targets (DESIGN.md, issue 5):
 // reprojection RMS <= 0.1 px, focal length within 0.1 %, laser plane normals within 0.05 deg and offsets
 // within 0.05 mm, table axis within 0.05 mm and 0.05 deg.
 #include <algorithm>
@@ -13,16 +13,16 @@
 
 #include <gtest/gtest.h>
 
-#include "calibrate.h"
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/calib/rig_calibration.h"
 #include "rotoscan/geometry/rigid.h"
+#include "rotoscan/pipeline/calibrate.h"
 #include "rotoscan/sim/scene.h"
 #include "rotoscan/sim/simulate.h"
 #include "rig_errors.h"
 #include "testing/testing.h"
 
-namespace rotoscan::cli {
+namespace rotoscan::pipeline {
 namespace {
 
 using rotoscan::testing::DataPath;
@@ -39,7 +39,7 @@ using rotoscan::testing::NormalErrorDeg;
 using rotoscan::testing::OffsetErrorMm;
 
 struct Rendered {
-  std::vector<std::string> bundles;
+  std::vector<std::filesystem::path> bundles;
   geometry::Rig truth;
   calib::CalibrationData data;
 };
@@ -55,7 +55,7 @@ void Render(const ScratchDir& dir, Rendered* out) {
     options.steps = kSteps;
     const Status simulated = sim::Simulate(*scene, options, nullptr);
     ASSERT_TRUE(simulated.ok()) << simulated.ToString();
-    out->bundles.push_back(options.out.string());
+    out->bundles.push_back(options.out);
   }
   Result<geometry::Rig> truth = geometry::ReadRigYaml(bundle::TruthRigPath(out->bundles[0]));
   ASSERT_TRUE(truth.ok()) << truth.status().ToString();
@@ -150,4 +150,4 @@ TEST(RenderedCalibrationTest, ThreePlacementsMeetTheTargetsAgainstTruth) {
 }
 
 }  // namespace
-}  // namespace rotoscan::cli
+}  // namespace rotoscan::pipeline

@@ -21,17 +21,17 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
-#include "calibrate.h"
 #include "rotoscan/bundle/bundle.h"
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/calib/rig_calibration.h"
 #include "rotoscan/geometry/rigid.h"
+#include "rotoscan/pipeline/calibrate.h"
 #include "rotoscan/sim/scene.h"
 #include "rotoscan/sim/simulate.h"
 #include "rig_errors.h"
 #include "testing/testing.h"
 
-namespace rotoscan::cli {
+namespace rotoscan::pipeline {
 namespace {
 
 using rotoscan::testing::DataPath;
@@ -104,7 +104,7 @@ TEST(SlippingTableTest, RefinedTableAnglesRecoverTheSlipAndTheReportJudgesTheSca
   if (std::getenv("ROTOSCAN_CALIB_RENDERED") == nullptr)
     GTEST_SKIP() << "set ROTOSCAN_CALIB_RENDERED=1 to run";
   ScratchDir dir;
-  std::vector<std::string> bundles;
+  std::vector<std::filesystem::path> bundles;
   std::vector<std::vector<bundle::TableAngle>> angles;
   for (const char* name : {"calibration.json", "calibration-2.json", "calibration-3.json"}) {
     Result<sim::Scene> scene = sim::LoadScene(DataPath(std::string("scenes/") + name));
@@ -121,7 +121,7 @@ TEST(SlippingTableTest, RefinedTableAnglesRecoverTheSlipAndTheReportJudgesTheSca
         bundle::ReadTableAngles(bundle::TruthTableAnglesPath(options.out));
     ASSERT_TRUE(truth.ok()) << truth.status().ToString();
     angles.push_back(*truth);
-    bundles.push_back(options.out.string());
+    bundles.push_back(options.out);
   }
   Result<geometry::Rig> truth_rig = geometry::ReadRigYaml(bundle::TruthRigPath(bundles[0]));
   ASSERT_TRUE(truth_rig.ok()) << truth_rig.status().ToString();
@@ -221,4 +221,4 @@ TEST(SlippingTableTest, RefinedTableAnglesRecoverTheSlipAndTheReportJudgesTheSca
 }
 
 }  // namespace
-}  // namespace rotoscan::cli
+}  // namespace rotoscan::pipeline

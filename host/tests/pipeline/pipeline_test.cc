@@ -15,6 +15,7 @@
 #include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rig.h"
 #include "rotoscan/geometry/rigid.h"
+#include "rotoscan/pipeline/calibrate.h"
 #include "testing/testing.h"
 
 namespace rotoscan::pipeline {
@@ -228,6 +229,31 @@ TEST(PipelineTest, BadInputIsAnError) {
   ProcessOptions no_laser;
   no_laser.use_laser[0] = no_laser.use_laser[1] = false;
   EXPECT_EQ(ProcessSteps(rig, all_bad, no_laser).status().code(), StatusCode::kInvalidArgument);
+}
+
+// Calibration from bundles (pipeline/calibrate.h) says what is wrong with its input: no bundle, a directory
+// that is no bundle, a scan bundle. (Its results are checked against truth by
+// calib/rendered_calibration_test, calibrate_command_test and the install test's calibrate_and_scan example.)
+TEST(PipelineTest, CalibrateFromBundlesRefusesWhatIsNoCalibrationBundle) {
+  rotoscan::testing::ScratchDir dir;
+  Result<BundleCalibration> r = CalibrateFromBundles({});
+  EXPECT_EQ(r.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(r.status().message().find("no calibration bundle"), std::string::npos) << r.status().message();
+  EXPECT_FALSE(CalibrateFromBundles({dir / "missing"}).ok());
+  const geometry::Rig rig = SmallRig();
+  bundle::BundleHeader header;
+  header.kind = bundle::BundleKind::kScan;
+  header.camera.model = rig.camera;
+  header.camera.channels = 1;
+  auto writer = bundle::BundleWriter::Create(dir / "scan", header);
+  ASSERT_TRUE(writer.ok()) << writer.status().ToString();
+  bundle::FrameRecord record;
+  record.laser = bundle::LaserState::kOff;
+  ASSERT_TRUE((*writer)->AddFrame(record, cv::Mat(rig.camera.height, rig.camera.width, CV_8UC1, 10)).ok());
+  ASSERT_TRUE((*writer)->Finish().ok());
+  r = CalibrateFromBundles({dir / "scan"});
+  EXPECT_EQ(r.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(r.status().message().find("is a scan bundle"), std::string::npos) << r.status().message();
 }
 
 TEST(PipelineTest, SampleRgbIsBilinear) {

@@ -170,4 +170,42 @@ Result<Eigen::Vector3d> TriangulateWithPlane(const ProjectionMatrix& projection,
   return Eigen::Vector3d(a.partialPivLu().solve(b));
 }
 
+Result<Eigen::Matrix3d> EstimateHomographyDlt(const std::vector<Eigen::Vector2d>& from,
+                                              const std::vector<Eigen::Vector2d>& to) {
+  ROTOSCAN_CHECK_EQ(from.size(), to.size());
+  const int n = static_cast<int>(from.size());
+  if (n < 4) {
+    return InvalidArgumentError(
+        "homography needs at least 4 correspondences (8 unknowns, 2 equations each), got " +
+        std::to_string(n));
+  }
+  for (int i = 0; i < n; ++i) {
+    if (!from[i].allFinite() || !to[i].allFinite()) {
+      return InvalidArgumentError("homography correspondence " + std::to_string(i) + " is not finite");
+    }
+  }
+  Eigen::Matrix3d tf, tt;
+  if (!NormalisingTransform<2>(from, &tf) || !NormalisingTransform<2>(to, &tt)) {
+    return InvalidArgumentError("homography points all coincide");
+  }
+  // Rows [0, -x, y' x] and [x, 0, -x' x] per point, on normalised coordinates.
+  Eigen::MatrixXd a(2 * n, 9);
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d x = tf * from[i].homogeneous();
+    const Eigen::Vector3d y = tt * to[i].homogeneous();
+    a.row(2 * i) << Eigen::RowVector3d::Zero(), -x.transpose(), y.y() * x.transpose();
+    a.row(2 * i + 1) << x.transpose(), Eigen::RowVector3d::Zero(), -y.x() * x.transpose();
+  }
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullV);
+  if (svd.singularValues()(7) < 1e-9 * svd.singularValues()(0)) {
+    return InvalidArgumentError("homography system is rank deficient (degenerate point configuration)");
+  }
+  const Eigen::VectorXd h = svd.matrixV().col(8);
+  Eigen::Matrix3d normalised;
+  normalised << h(0), h(1), h(2), h(3), h(4), h(5), h(6), h(7), h(8);
+  const Eigen::Matrix3d homography = tt.inverse() * normalised * tf;
+  if (!homography.allFinite()) return InvalidArgumentError("homography is not finite (degenerate input)");
+  return homography;
+}
+
 }  // namespace rotoscan::geometry

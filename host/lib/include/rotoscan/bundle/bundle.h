@@ -81,7 +81,7 @@ struct CameraInfo {
   double pixel_size_um = 0.0;       // 0: unknown
   double laser_exposure_us = 0.0;   // exposure of the left/right/off frames
   double natural_exposure_us = 0.0;  // exposure of the natural (color) frame
-  double gain_db = 0.0;
+  double gain_db = 0.0;             // analogue gain, dB
 };
 
 struct DeviceInfo {
@@ -111,7 +111,7 @@ struct FrameRecord {
   LaserState laser = LaserState::kOff;
   uint32_t trigger_seq = 0;       // hardware trigger sequence number
   uint64_t device_time_us = 0;    // device timestamp of the trigger edge
-  double exposure_us = 0.0;
+  double exposure_us = 0.0;       // exposure time of this frame
   int pose = -1;                  // calibration target pose index, -1 when not applicable
 };
 
@@ -120,7 +120,7 @@ struct BundleHeader {
   BundleKind kind = BundleKind::kScan;
   std::string created_by;
   CameraInfo camera;
-  double table_step_rad = 0.0;
+  double table_step_rad = 0.0;  // commanded turn per table step (0: unknown)
   DeviceInfo device;
   TargetInfo target;  // calibration bundles
 };

@@ -47,24 +47,24 @@ struct TruthMesh {
 };
 
 struct LinePoint {
-  int row = 0;
-  double column = 0.0;
-  Eigen::Vector3d point_in_cam = Eigen::Vector3d::Zero();
-  Eigen::Vector3d point_in_world = Eigen::Vector3d::Zero();
-  int object = 0;  // 0: table top, 1..: scene objects
+  int row = 0;                                               // image row, px
+  double column = 0.0;                                       // sub-pixel column of the true line, px
+  Eigen::Vector3d point_in_cam = Eigen::Vector3d::Zero();    // the surface point, camera frame, mm
+  Eigen::Vector3d point_in_world = Eigen::Vector3d::Zero();  // the same in the world frame, mm
+  int object = 0;                                            // 0: table top, 1..: scene objects
 };
 
 struct TargetPose {
   int pose = 0;
   int step = 0;
-  Eigen::Isometry3d cam_from_target = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d cam_from_target = Eigen::Isometry3d::Identity();  // mm
 };
 
 struct TableAngle {
   int pose = -1;
   int step = 0;
-  double commanded_rad = 0.0;
-  double true_rad = 0.0;
+  double commanded_rad = 0.0;  // the angle the bundle records
+  double true_rad = 0.0;       // the angle the table stood at (a slipping table)
 };
 
 // Binary little-endian PLY with vertex colors. The reader also accepts ASCII PLY and bounds all counts.

@@ -12,6 +12,7 @@
 //    gross outliers that would tilt a least-squares plane. RANSAC rather than IRLS because a few far
 //    outliers can pull an IRLS start into a wrong basin, while RANSAC only needs one clean sample.
 //
+// Frames: the points in any one frame (the camera frame in the calibration), mm; the plane is in that frame.
 // Degenerate inputs (fewer than 3 points, collinear points) are kInvalidArgument.
 #pragma once
 

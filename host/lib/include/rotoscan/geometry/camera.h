@@ -73,6 +73,8 @@ struct CameraModel {
   // The ray through `pixel` as a direction in the camera frame with z = 1 (distortion removed).
   Eigen::Vector3d PixelToRay(const Eigen::Vector2d& pixel) const;
 
+  // True when `pixel` (column, row; pixel centres at whole numbers, the image edges at -0.5 and
+  // width - 0.5) lies inside the image by at least `margin` pixels.
   bool IsInside(const Eigen::Vector2d& pixel, double margin = 0.0) const;
 
  private:

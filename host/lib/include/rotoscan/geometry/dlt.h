@@ -59,4 +59,12 @@ Result<ProjectionDecomposition> DecomposeProjection(const ProjectionMatrix& proj
 Result<Eigen::Vector3d> TriangulateWithPlane(const ProjectionMatrix& projection, const Plane& plane_in_object,
                                              const Eigen::Vector2d& pixel);
 
+// The plane-to-plane homography H (3x3, up to scale) with to ~ H from, by the same normalised DLT: two rows
+// per correspondence, the unit h minimising |A h|. Units are the caller's (e.g. pixels to mm on a target
+// plane). kInvalidArgument for fewer than 4 correspondences, non-finite input, points that all
+// coincide, or a rank-deficient system (e.g. three of four points on one line); lists of different sizes
+// are a broken precondition.
+Result<Eigen::Matrix3d> EstimateHomographyDlt(const std::vector<Eigen::Vector2d>& from,
+                                              const std::vector<Eigen::Vector2d>& to);
+
 }  // namespace rotoscan::geometry

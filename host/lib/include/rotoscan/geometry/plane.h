@@ -20,9 +20,11 @@ struct Plane {
   // The paper's c1..c3 (eq. 5); requires a plane not through the origin (|d| > 0).
   Eigen::Vector3d PaperCoefficients() const;
 
+  // Signed distance (mm, positive on the normal's side) of a point given in the plane's frame (mm).
   double SignedDistance(const Eigen::Vector3d& point) const { return normal.dot(point) + offset; }
 
-  // Where the ray origin + t * direction meets the plane: t, or nullopt when parallel (|n.dir| < eps).
+  // Where the ray origin + t * direction meets the plane: t, or nullopt when parallel (|n.dir| < eps). The
+  // ray in the plane's frame (origin in mm); t in units of |direction| (mm for a unit direction).
   std::optional<double> IntersectRay(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
                                      double eps = 1e-12) const;
 

@@ -55,6 +55,7 @@ Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig);  // atom
 Result<Rig> ReadRigYaml(const std::filesystem::path& path);
 // The same from YAML text (`name` for messages): kCorruptData or kInvalidArgument, never an exception.
 Result<Rig> ParseRigYaml(const std::string& text, const std::string& name);
+// The rig's keys (above) into an open FileStorage, and back from its root node.
 void WriteRigNodes(cv::FileStorage& storage, const Rig& rig);
 Result<Rig> ReadRigNodes(const cv::FileNode& root);
 
