@@ -208,6 +208,26 @@ TEST_F(CaptureHilTest, TriggeredScanOverTheMockedBusEndsInACloudOnTheSurface) {
   CheckBundleAndCloud(dir_ / "b");
 }
 
+// The host stalls for longer than the board's laser timeout (a loaded machine): the board stops the program
+// and turns the lasers off; the scan resumes it and ends complete, no frame tied to the wrong step.
+TEST_F(CaptureHilTest, HostStallTripsLaserSafetyAndTheScanResumes) {
+  Rig rig = Open();
+  ASSERT_NE(rig.camera, nullptr);
+  bool stalled = false;
+  on_frame_ = [&](const CapturedFrame& c) {
+    if (c.step == 4 && !stalled) {
+      stalled = true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(2500));  // > MotionConfig::laser_timeout_ms
+    }
+  };
+  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
+  ASSERT_TRUE(summary.ok()) << summary.status().ToString();
+  std::printf("%s\n", summary.value().Summary().c_str());
+  EXPECT_EQ(summary.value().frames_used, kSteps * 4);
+  rig.board.reset();
+  CheckBundleAndCloud(dir_ / "b");
+}
+
 TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
   Rig rig = Open();
   ASSERT_NE(rig.camera, nullptr);

@@ -63,6 +63,10 @@ Status ClientBoard::EnableMotor(bool enable) { return client_->EnableMotor(enabl
 double ClientBoard::table_angle_rad() const { return position_ * radians_per_step_; }
 
 Result<BoardChange> ClientBoard::MoveTo(double angle_rad) {
+  // From where the board says the table is: events that arrive late (a program's last edges, a status of
+  // an earlier program) must not shift a relative move.
+  ROTOSCAN_ASSIGN_OR_RETURN(const device::BoardStatus status, client_->GetStatus());
+  position_ = status.position;
   return MoveBy(angle_rad - table_angle_rad());
 }
 
@@ -171,12 +175,12 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
       continue;
     }
     if (const auto* status = std::get_if<device::BoardStatus>(&*event)) {
-      position_ = status->position;
       if (status->cause != device::StatusCause::kReply &&
           (!program_running_ || static_cast<double>(status->time_us) < program_start_device_us_)) {
         ROTOSCAN_LOG(kDebug) << Description() << ": status of an earlier program ignored";
         continue;
       }
+      position_ = status->position;
       if (status->cause == device::StatusCause::kProgramDone) {
         program_running_ = false;
         lasers_ = 0;
@@ -187,7 +191,9 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
         ROTOSCAN_LOG(kWarning) << Description() << ": program stopped by the board ("
                                << (status->cause == device::StatusCause::kSafety ? "laser safety" : "abort")
                                << " at step " << status->program_next_step << "), resuming";
-        ROTOSCAN_ASSIGN_OR_RETURN(auto resumed, client_->ResumeProgram());
+        // ResumeProgram() here, not the client's: the scan may have resumed it already (a quiet spell),
+        // and a program running again is not a finished one.
+        ROTOSCAN_ASSIGN_OR_RETURN(auto resumed, ResumeProgram());
         if (!resumed) {
           program_running_ = false;
           if (program_done != nullptr) *program_done = true;

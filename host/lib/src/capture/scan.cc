@@ -275,7 +275,11 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
     }
     const int step = static_cast<int>(*edge.event.step_index) * stride + step_offset;
     const LaserState laser = shots[edge.event.shot];
-    if (edge.event.laser_mask != MaskOf(laser) || frames[i].exposure_us != ExposureOf(o, laser)) {
+    // The board's own position at the edge must be the step's: an edge of another program (late events
+    // after a resume) or a table that is not where the host sent it is never tied to this step.
+    const double half_motor_step = 0.5 * run.board.capabilities().degrees_per_step * kPi / 180.0;
+    if (edge.event.laser_mask != MaskOf(laser) || frames[i].exposure_us != ExposureOf(o, laser) ||
+        std::abs(edge.table_angle_rad - step * run.step_rad) > half_motor_step) {
       ++run.summary.frames_unmatched;
       return Status::Ok();
     }
