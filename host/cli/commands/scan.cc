@@ -147,6 +147,7 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
   options.natural_every = o.natural_every;
   options.resume = o.resume;
   options.overwrite = o.overwrite;
+  options.replay_resumed = o.live;  // --live --resume: the steps taken before the interruption, from disk
   auto& header = options.header;
   header.kind = *target == bundle::TargetKind::kNone ? bundle::BundleKind::kScan : bundle::BundleKind::kCalibration;
   header.created_by = "rotoscan scan";

@@ -1,13 +1,21 @@
 // `rotoscan scan` and `rotoscan devices` as the user runs them, with no hardware: the sim board and the
 // virtual camera, --live processing into a cloud, and bad input answered with a message and an exit code.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
 #include <sstream>
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
 #include "command.h"
+#include "fake_ciclop.h"
+#include "fake_ciclop_truth.h"
+#include "rotoscan/capture/factory.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/geometry/rig.h"
 #include "rotoscan/sim/scene.h"
@@ -60,6 +68,140 @@ TEST_F(ScanCommandTest, SimBoardVirtualCameraLiveCloud) {
   ASSERT_TRUE(points.ok()) << points.status().ToString();
   EXPECT_GT(points.value().points.size(), 300u);
   EXPECT_TRUE(fs::exists(fs::path(bundle) / "bundle.json"));
+}
+
+// RMS distance of a cloud's points above the table to the true sphere (the scene's: r = 30 mm, resting on
+// the table at the origin).
+double SphereRms(const cloud::PointCloud& cloud, size_t* n) {
+  double sum2 = 0;
+  *n = 0;
+  for (const auto& p : cloud.points) {
+    const Eigen::Vector3d x = p.position_in_table.cast<double>();
+    if (x.z() < 2.0) continue;  // the table top
+    const double d = (x - Eigen::Vector3d(0, 0, 30)).norm() - 30.0;
+    sum2 += d * d;
+    ++*n;
+  }
+  return *n > 0 ? std::sqrt(sum2 / static_cast<double>(*n)) : 0.0;
+}
+
+// --live --resume: a live scan that failed half way (the simulated board unplugged for good: the client
+// gives up after its reconnect window) is resumed live; the steps taken before the interruption are read
+// back from the partial bundle into the live processing. Its cloud equals that of a scan never interrupted:
+// every step and laser there; the steps taken before the interruption point for point (the same frames:
+// the camera's frame ids, hence its noise, are those of the uninterrupted run); the steps taken after it
+// differ only by the sensor noise of other frame ids (another capture of the same surface, whose rows are
+// found or not near the silhouette by noise): point counts per step and laser within 15 %, the median
+// distance from a point to the other cloud's nearest point of the same step and laser within kSameMm (the
+// clouds lie 0.05 mm RMS from the true surface), and the RMS distance to the true sphere within 0.005 mm.
+TEST_F(ScanCommandTest, LiveResumeGivesTheCloudOfAnUninterruptedScan) {
+  constexpr double kSameMm = 0.05;
+  std::string out, err;
+  const std::string whole = (dir_ / "whole").string();
+  ASSERT_EQ(RunCli({"scan", "--scene", scene_, "--calib", calib_, "--out", whole, "--steps", "8", "--live"}, &out, &err), 0)
+      << err;
+  const std::string bundle = (dir_ / "resumed").string();
+  EXPECT_EQ(RunCli({"scan", "--scene", scene_, "--calib", calib_, "--out", bundle, "--steps", "8", "--live", "--option",
+                    "unplug_at_ms=500", "--option", "unplug_for_ms=100000"},
+                   &out, &err),
+            1);
+  EXPECT_NE(err.find("did not come back"), std::string::npos) << err;
+  EXPECT_TRUE(fs::exists(bundle + ".partial"));
+  ASSERT_EQ(RunCli({"scan", "--scene", scene_, "--calib", calib_, "--out", bundle, "--steps", "8", "--live", "--resume"},
+                   &out, &err),
+            0)
+      << err;
+  int resumed_steps = 0;
+  const auto pos = out.find(" done before)");
+  ASSERT_NE(pos, std::string::npos) << out;
+  ASSERT_EQ(std::sscanf(out.c_str() + out.rfind('(', pos), "(%d", &resumed_steps), 1) << out;
+  EXPECT_GE(resumed_steps, 1) << out;
+  EXPECT_NE(out.find("live: steps 8 of 8 processed, 0 skipped"), std::string::npos) << out;
+  auto a = cloud::ReadPly(whole + ".ply");
+  auto b = cloud::ReadPly(bundle + ".ply");
+  ASSERT_TRUE(a.ok()) << a.status().ToString();
+  ASSERT_TRUE(b.ok()) << b.status().ToString();
+  using Key = std::pair<int, int>;  // step, laser
+  std::map<Key, std::vector<Eigen::Vector3f>> in_a, in_b;
+  for (const auto& p : a.value().points) in_a[{p.step, p.laser}].push_back(p.position_in_table);
+  for (const auto& p : b.value().points) in_b[{p.step, p.laser}].push_back(p.position_in_table);
+  ASSERT_EQ(in_a.size(), in_b.size());
+  std::vector<double> nearest;
+  for (const auto& [key, points_a] : in_a) {
+    ASSERT_EQ(in_b.count(key), 1u) << "step " << key.first << " laser " << key.second << " missing after resume";
+    const auto& points_b = in_b[key];
+    if (key.first < resumed_steps) {
+      EXPECT_EQ(points_b, points_a) << "step " << key.first << " laser " << key.second << " (read back from disk)";
+      continue;
+    }
+    EXPECT_NEAR(static_cast<double>(points_b.size()), static_cast<double>(points_a.size()), 0.15 * points_a.size())
+        << "step " << key.first << " laser " << key.second;
+    for (const auto& p : points_b) {
+      double best = std::numeric_limits<double>::max();
+      for (const auto& q : points_a) best = std::min(best, static_cast<double>((q - p).norm()));
+      nearest.push_back(best);
+    }
+  }
+  size_t na = 0, nb = 0;
+  const double rms_a = SphereRms(a.value(), &na), rms_b = SphereRms(b.value(), &nb);
+  ASSERT_FALSE(nearest.empty());
+  std::sort(nearest.begin(), nearest.end());
+  const double median = nearest[nearest.size() / 2];
+  const double p90 = nearest[nearest.size() * 9 / 10];
+  std::printf("uninterrupted: %zu points, %.4f mm RMS to the sphere; resumed live (%d steps before): %zu points, "
+              "%.4f mm; later steps' points to the uninterrupted cloud: median %.4f mm, p90 %.4f mm\n",
+              na, rms_a, resumed_steps, nb, rms_b, median, p90);
+  EXPECT_LT(median, kSameMm);
+  EXPECT_NEAR(rms_b, rms_a, 0.005);
+}
+
+// `rotoscan scan --device ciclop:PTY` against the fake horus-fw board on a pseudo-terminal, with the virtual
+// camera filming that board (a camera backend this test registers: the `virtual` camera given the fake's
+// truth), free-running at 30 frames/s with a rolling shutter, --live, ending in a cloud on the true sphere.
+TEST_F(ScanCommandTest, CiclopBoardOnAPtyEndsInACloud) {
+  using device::testing::FakeCiclop;
+  using device::testing::FakeCiclopOptions;
+  using device::testing::FakeCiclopTruth;
+  FakeCiclopOptions fake_options;  // horus-fw's defaults: 176 steps/deg, 180 deg/s, 180 deg/s^2
+  fake_options.link_path = (dir_ / "ttyUSB0").string();
+  FakeCiclop fake(fake_options);
+  ASSERT_TRUE(fake.Start()) << fake.error();
+  FakeCiclopTruth truth(&fake);
+  static FakeCiclopTruth* current = nullptr;
+  current = &truth;
+  static bool registered = false;
+  if (!registered) {
+    registered = true;
+    capture::CameraBackend eye;
+    eye.name = "ciclop-eye";
+    eye.description = "test: the virtual camera filming the fake Ciclop board";
+    eye.open = [](const std::string& argument, const capture::OpenContext& context) {
+      capture::OpenContext with_truth = context;
+      with_truth.truth = current;
+      return capture::OpenCamera("virtual" + (argument.empty() ? "" : ":" + argument), with_truth);
+    };
+    capture::BackendRegistry::Instance().AddCamera(eye);
+  }
+  std::string out, err;
+  const std::string bundle = (dir_ / "ciclop").string();
+  ASSERT_EQ(RunCli({"scan", "--device", "ciclop:" + fake_options.link_path, "--camera", "ciclop-eye", "--scene", scene_,
+                    "--calib", calib_, "--out", bundle, "--steps", "4", "--live", "--option", "rolling=1", "--option",
+                    "ok_timeout_ms=200"},
+                   &out, &err),
+            0)
+      << err;
+  current = nullptr;
+  EXPECT_NE(out.find("free-running: 4 steps"), std::string::npos) << out;
+  EXPECT_NE(out.find("used 16"), std::string::npos) << out;
+  EXPECT_FALSE(fake.LaserAt(1, capture::MonotonicNowUs()));
+  EXPECT_FALSE(fake.LaserAt(2, capture::MonotonicNowUs()));
+  auto cloud = cloud::ReadPly(bundle + ".ply");
+  ASSERT_TRUE(cloud.ok()) << cloud.status().ToString();
+  size_t n = 0;
+  const double rms = SphereRms(cloud.value(), &n);
+  std::printf("ciclop over a pty, --live: %zu points on the sphere, %.4f mm RMS\n%s", n, rms, out.c_str());
+  EXPECT_GT(n, 100u);
+  EXPECT_LT(rms, 0.1);
 }
 
 TEST_F(ScanCommandTest, BadInputIsAClearError) {

@@ -64,6 +64,8 @@ struct MockUsbBoard::Impl {
   std::thread clock;
   std::atomic<bool> stop{false};
   std::atomic<bool> paused{false};
+  int64_t zero_host_us = 0;  // real_time: CLOCK_MONOTONIC when the board's time was 0
+  int64_t board_us = 0;      // real_time: how far the board's time has been run
 
   mutable std::mutex mutex;  // guards the board and everything below
   bool plugged = true;
@@ -211,6 +213,7 @@ struct MockUsbBoard::Impl {
             drop_next_out = false;
             ++counters.dropped;
           } else {
+            if (options.real_time) CatchUp();
             board->Receive(bytes.data(), bytes.size());
             if (duplicate_next_out) {
               duplicate_next_out = false;
@@ -268,9 +271,30 @@ struct MockUsbBoard::Impl {
     return static_cast<Impl*>(self)->HandleIoctl(client);
   }
 
+  static int64_t MonotonicUs() {
+    return std::chrono::duration_cast<std::chrono::microseconds>(
+               std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+  }
+
+  // Options::real_time: runs the board up to the host's time. Called with the mutex held, from the clock
+  // thread and around each OUT packet, so that the board handles a command at the time it arrives (a late
+  // clock tick under load would otherwise stamp a PONG with a stale time).
+  void CatchUp() {
+    const int64_t target = MonotonicUs() - zero_host_us;
+    if (target > board_us) {
+      board->Advance(target - board_us);
+      board_us = target;
+    }
+  }
+
   void RunClock() {
     while (!stop) {
-      if (!paused) {
+      if (options.real_time) {
+        std::lock_guard<std::mutex> lock(mutex);
+        CatchUp();
+        FillIn();
+      } else if (!paused) {
         std::lock_guard<std::mutex> lock(mutex);
         board->Advance(options.virtual_us_per_tick);
       }
@@ -293,6 +317,7 @@ MockUsbBoard::MockUsbBoard(VirtualBoard* board, const Options& options) : impl_(
   impl_->handler = umockdev_ioctl_base_new();
   g_signal_connect(impl_->handler, "handle-ioctl", G_CALLBACK(&Impl::OnIoctl), impl_.get());
   impl_->Plug();
+  impl_->zero_host_us = Impl::MonotonicUs();
   impl_->clock = std::thread([this] { impl_->RunClock(); });
 }
 
@@ -373,6 +398,8 @@ void MockUsbBoard::WithBoardLocked(const std::function<void()>& f) {
 void MockUsbBoard::PauseTime(bool paused) {
   impl_->paused = paused;
 }
+
+int64_t MockUsbBoard::device_zero_host_us() const { return impl_->zero_host_us; }
 
 MockUsbBoard::Counters MockUsbBoard::counters() const {
   std::lock_guard<std::mutex> lock(impl_->mutex);

@@ -30,6 +30,10 @@ class MockUsbBoard {
   struct Options {
     int64_t virtual_us_per_tick = 1000;
     int64_t real_us_per_tick = 200;
+    // The board's time follows the host's CLOCK_MONOTONIC instead (virtual_us_per_tick is ignored): device
+    // time t is host time device_zero_host_us() + t, as a board whose crystal ran at the host's rate would
+    // be. Each tick runs the board up to the host's time, so a late tick catches up instead of drifting.
+    bool real_time = false;
   };
 
   static bool InMockEnvironment();
@@ -51,8 +55,10 @@ class MockUsbBoard {
 
   // Runs `f` with the board's time stopped (for reading the simulator's state).
   void WithBoardLocked(const std::function<void()>& f);
-  // Stops or restarts the board's clock (the ioctls are still served).
+  // Stops or restarts the board's clock (the ioctls are still served). No effect with Options::real_time.
   void PauseTime(bool paused);
+  // Options::real_time: the host time (CLOCK_MONOTONIC, microseconds) at which the board's time was 0.
+  int64_t device_zero_host_us() const;
 
   struct Counters {
     int out_packets = 0, in_packets = 0, dropped = 0, corrupted = 0, duplicated = 0, unplugs = 0;

@@ -10,6 +10,7 @@ namespace rotoscan::capture::internal {
 namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr int64_t kMoveTimeoutUs = 30'000'000;
+constexpr int64_t kStaleMarginUs = 5'000;
 }  // namespace
 
 Result<std::unique_ptr<ClientBoard>> ClientBoard::Create(std::unique_ptr<device::Client> client,
@@ -19,7 +20,17 @@ Result<std::unique_ptr<ClientBoard>> ClientBoard::Create(std::unique_ptr<device:
   std::unique_ptr<ClientBoard> board(new ClientBoard(std::move(client), std::move(clock), std::move(info), options));
   device::Client& c = *board->client_;
   ROTOSCAN_RETURN_IF_ERROR(c.SetConfig(options.motion));
-  ROTOSCAN_ASSIGN_OR_RETURN(board->fit_, c.SyncClock(options.clock_pings, options.clock_fit));
+  if (options.clock_pings < options.clock_fit.min_samples) {
+    return InvalidArgumentError("board: clock_pings must be at least clock_fit.min_samples");
+  }
+  for (int i = 0; i < options.clock_pings; ++i) {
+    auto sample = c.Ping();
+    if (!sample.ok()) return sample.status().WithContext("clock sync, ping " + std::to_string(i));
+    board->samples_.push_back(*sample);
+  }
+  device::ClockFitOptions offset_only = options.clock_fit;
+  offset_only.fit_drift = false;
+  ROTOSCAN_ASSIGN_OR_RETURN(board->fit_, device::FitClock(board->samples_, offset_only));
   ROTOSCAN_ASSIGN_OR_RETURN(const device::BoardStatus status, c.GetStatus());
   board->position_ = status.position;
   board->lasers_ = status.lasers;
@@ -52,6 +63,10 @@ Status ClientBoard::EnableMotor(bool enable) { return client_->EnableMotor(enabl
 double ClientBoard::table_angle_rad() const { return position_ * radians_per_step_; }
 
 Result<BoardChange> ClientBoard::MoveTo(double angle_rad) {
+  // From where the board says the table is: events that arrive late (a program's last edges, a status of
+  // an earlier program) must not shift a relative move.
+  ROTOSCAN_ASSIGN_OR_RETURN(const device::BoardStatus status, client_->GetStatus());
+  position_ = status.position;
   return MoveBy(angle_rad - table_angle_rad());
 }
 
@@ -87,16 +102,27 @@ Result<BoardChange> ClientBoard::SetLasers(uint8_t mask) {
 }
 
 Status ClientBoard::Shutdown() {
+  if (unreachable_) return DeviceError(Description() + ": unreachable; its laser safety turns the lasers off");
+  // A board that is gone (an unplug beyond the client's reconnect window) fails each command only after that
+  // window: stop at the first such failure. Its laser safety (MotionConfig::laser_timeout_ms) stops the
+  // program and turns the lasers off after that much silence.
+  auto gone = [this](const Status& s) {
+    if (s.code() == StatusCode::kDeviceError || s.code() == StatusCode::kTimeout) unreachable_ = true;
+    return unreachable_;
+  };
   Status first;
   if (program_running_) {
     first = client_->Abort();
     program_running_ = false;
+    if (gone(first)) return first;
   }
   Status s = client_->SetLasers(0);
   if (s.ok()) lasers_ = 0;
   if (first.ok()) first = s;
+  if (gone(s)) return first;
   s = client_->EnableMotor(false);
   if (first.ok()) first = s;
+  gone(s);
   return first;
 }
 
@@ -108,6 +134,10 @@ Status ClientBoard::LoadProgram(const device::ScanProgram& program) {
 }
 
 Status ClientBoard::StartProgram(uint32_t first_step) {
+  // Statuses stamped before this (less the fit's error) are of an earlier program: one the board stopped
+  // while the host could not hear it (an unplug), reported once it could.
+  program_start_device_us_ = fit_.DeviceFromHost(static_cast<double>(clock_->NowUs())) -
+                             static_cast<double>(fit_.min_round_trip_us + kStaleMarginUs);
   ROTOSCAN_RETURN_IF_ERROR(client_->Start(first_step));
   program_running_ = true;
   return Status::Ok();
@@ -123,9 +153,11 @@ Status ClientBoard::AbortProgram() {
 Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, bool* program_done) {
   if (program_done != nullptr) *program_done = false;
   const int64_t deadline = clock_->NowUs() + timeout_us;
+  bool polled = false;  // a zero timeout still reads what has arrived (on a real clock time has moved on)
   while (true) {
     const int64_t left = deadline - clock_->NowUs();
-    if (left < 0) return std::optional<TriggerEdge>();
+    if (left < 0 && polled) return std::optional<TriggerEdge>();
+    polled = true;
     // At least 1 us: the client reads the transport only when it has time to wait.
     ROTOSCAN_ASSIGN_OR_RETURN(auto event, client_->NextEvent(std::max<int64_t>(left, 1)));
     if (!event) return std::optional<TriggerEdge>();
@@ -143,6 +175,11 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
       continue;
     }
     if (const auto* status = std::get_if<device::BoardStatus>(&*event)) {
+      if (status->cause != device::StatusCause::kReply &&
+          (!program_running_ || static_cast<double>(status->time_us) < program_start_device_us_)) {
+        ROTOSCAN_LOG(kDebug) << Description() << ": status of an earlier program ignored";
+        continue;
+      }
       position_ = status->position;
       if (status->cause == device::StatusCause::kProgramDone) {
         program_running_ = false;
@@ -153,8 +190,10 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
       if (status->cause == device::StatusCause::kSafety || status->cause == device::StatusCause::kAborted) {
         ROTOSCAN_LOG(kWarning) << Description() << ": program stopped by the board ("
                                << (status->cause == device::StatusCause::kSafety ? "laser safety" : "abort")
-                               << "), resuming";
-        ROTOSCAN_ASSIGN_OR_RETURN(auto resumed, client_->ResumeProgram());
+                               << " at step " << status->program_next_step << "), resuming";
+        // ResumeProgram() here, not the client's: the scan may have resumed it already (a quiet spell),
+        // and a program running again is not a finished one.
+        ROTOSCAN_ASSIGN_OR_RETURN(auto resumed, ResumeProgram());
         if (!resumed) {
           program_running_ = false;
           if (program_done != nullptr) *program_done = true;
@@ -166,6 +205,27 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
   }
 }
 
-Result<std::optional<uint32_t>> ClientBoard::ResumeProgram() { return client_->ResumeProgram(); }
+Result<std::optional<uint32_t>> ClientBoard::ResumeProgram() {
+  // A program still running (a long move to its next step) is not finished: its next step, left alone.
+  ROTOSCAN_ASSIGN_OR_RETURN(const device::BoardStatus status, client_->GetStatus());
+  if (status.state == device::BoardState::kRunning) return std::optional<uint32_t>(status.program_next_step);
+  return client_->ResumeProgram();
+}
+
+Status ClientBoard::KeepAlive() {
+  ROTOSCAN_ASSIGN_OR_RETURN(const device::PingSample sample, client_->Ping());
+  samples_.push_back(sample);
+  if (samples_.size() > options_.max_samples) samples_.erase(samples_.begin());
+  device::ClockFitOptions fit_options = options_.clock_fit;
+  fit_options.fit_drift = options_.clock_fit.fit_drift &&
+                          samples_.back().host_send_us - samples_.front().host_send_us >= options_.drift_after_us;
+  auto fit = device::FitClock(samples_, fit_options);
+  if (fit.ok()) {
+    fit_ = *fit;
+  } else {
+    ROTOSCAN_LOG(kDebug) << Description() << ": clock refit refused (" << fit.status().message() << "), kept the last fit";
+  }
+  return Status::Ok();
+}
 
 }  // namespace rotoscan::capture::internal

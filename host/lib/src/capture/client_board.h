@@ -2,10 +2,16 @@
 // changes: a laser switch takes effect on the board when SET_LASERS arrives, so between the command's
 // send time and its acknowledgement; a move from its send time to its MOVE_DONE event's device time
 // through the clock fit (plus the fit's error); trigger edges at their device time through the fit.
+//
+// The clock fit: at open, from `clock_pings` back-to-back PINGs, offset only (over a few milliseconds a
+// crystal's drift is unobservable: fitting it there would turn ping jitter into a drift of percents). Every
+// KeepAlive() PING of a scan adds a sample, and the fit is redone from all of them; once they span
+// `drift_after_us`, with the drift too (when clock_fit.fit_drift), so a long scan's edges stay on time.
 #pragma once
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "rotoscan/capture/board.h"
 #include "rotoscan/capture/clock.h"
@@ -18,6 +24,8 @@ struct ClientBoardOptions {
   device::MotionConfig motion;
   int clock_pings = 16;
   device::ClockFitOptions clock_fit;
+  int64_t drift_after_us = 10'000'000;  // fit the drift once the samples span this long
+  size_t max_samples = 4096;           // the oldest keep-alive samples are dropped beyond this
 };
 
 class ClientBoard : public Board {
@@ -43,10 +51,11 @@ class ClientBoard : public Board {
   Status AbortProgram() override;
   Result<std::optional<TriggerEdge>> NextTrigger(int64_t timeout_us, bool* program_done) override;
   Result<std::optional<uint32_t>> ResumeProgram() override;
-  Status KeepAlive() override { return client_->Ping().status(); }
+  Status KeepAlive() override;
   int lost_events() const override { return client_->stats().lost_events; }
 
   device::Client& client() { return *client_; }
+  const device::ClockFit& clock_fit() const { return fit_; }
   double radians_per_step() const { return radians_per_step_; }
 
  private:
@@ -60,12 +69,15 @@ class ClientBoard : public Board {
   ClientBoardOptions options_;
   BoardCapabilities capabilities_;
   device::ClockFit fit_;
+  std::vector<device::PingSample> samples_;
   double radians_per_step_ = 0.0;
   int32_t position_ = 0;  // motor steps from where the board was opened
   int32_t program_origin_ = 0;
   int32_t program_steps_per_move_ = 0;
   uint8_t lasers_ = 0;
   bool program_running_ = false;
+  double program_start_device_us_ = 0.0;  // device time of StartProgram, less a margin
+  bool unreachable_ = false;  // Shutdown() found the board gone: later ones return at once
 };
 
 }  // namespace rotoscan::capture::internal

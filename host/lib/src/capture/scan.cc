@@ -14,6 +14,7 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr int64_t kKeepAliveUs = 400'000;  // our board's laser safety stops a program after 2 s of silence
 constexpr int64_t kScheduleMarginUs = 200;  // after a frame's predicted end, before the next change
+constexpr int64_t kNoFrameUs = 10'000'000;  // triggered: no frame for this long (moves included) is an error
 using bundle::LaserState;
 
 uint8_t MaskOf(LaserState s) {
@@ -216,9 +217,10 @@ Status FreeRunning(Run& run) {
 // ---- hardware-triggered ----
 
 // Runs the loaded program from `first_step` (or a one-step program) and writes the frames it can tie
-// to their trigger edges; returns the shots still missing.
+// to their trigger edges; returns the shots still missing. The program's step i is the scan's step
+// i * stride + step_offset (a pass of natural frames every k steps has stride k).
 Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& shots, int first_step,
-                                       int step_count, int step_offset) {
+                                       int step_count, int step_offset, int stride) {
   const ScanOptions& o = run.options;
   ROTOSCAN_RETURN_IF_ERROR(run.camera.Stop());
   ROTOSCAN_RETURN_IF_ERROR(run.camera.Start());  // the exposure cycle starts again at the first shot
@@ -226,8 +228,8 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
   std::map<uint32_t, TriggerEdge> edges;  // by seq
   std::vector<Frame> frames;
   bool done = false;
-  int asks = 0;
   int64_t quiet_since = run.clock.NowUs();
+  int64_t last_frame_us = quiet_since, last_edge_us = quiet_since;
   const double period = 1e6 / o.frame_rate_hz;
   const int64_t wait_after_done = static_cast<int64_t>(4 * period) + o.natural_exposure_us + 200'000;
   // Frames and edges are written per step as soon as the step's shots have all been seen.
@@ -271,9 +273,13 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
       ++run.summary.frames_unmatched;
       return Status::Ok();
     }
-    const int step = static_cast<int>(*edge.event.step_index) + step_offset;
+    const int step = static_cast<int>(*edge.event.step_index) * stride + step_offset;
     const LaserState laser = shots[edge.event.shot];
-    if (edge.event.laser_mask != MaskOf(laser) || frames[i].exposure_us != ExposureOf(o, laser)) {
+    // The board's own position at the edge must be the step's: an edge of another program (late events
+    // after a resume) or a table that is not where the host sent it is never tied to this step.
+    const double half_motor_step = 0.5 * run.board.capabilities().degrees_per_step * kPi / 180.0;
+    if (edge.event.laser_mask != MaskOf(laser) || frames[i].exposure_us != ExposureOf(o, laser) ||
+        std::abs(edge.table_angle_rad - step * run.step_rad) > half_motor_step) {
       ++run.summary.frames_unmatched;
       return Status::Ok();
     }
@@ -300,27 +306,32 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
         quiet_since = run.clock.NowUs();
       }
       if (!edge) break;
+      last_edge_us = run.clock.NowUs();
       edges[edge->event.trigger_seq] = *edge;
     }
     ROTOSCAN_ASSIGN_OR_RETURN(auto frame, run.camera.NextFrame(2000));
     if (frame) {
       run.Count(*frame);
       frames.push_back(std::move(*frame));
-      quiet_since = run.clock.NowUs();
+      quiet_since = last_frame_us = run.clock.NowUs();
       // Two frames later the edges of a frame and of the next have surely arrived: tie it now, so the
       // bundle, the progress and live processing follow the scan.
       while (tied + 2 < frames.size()) ROTOSCAN_RETURN_IF_ERROR(tie(tied++, false));
     }
-    const int expected = step_count * static_cast<int>(shots.size());
+    const int expected = (step_count - first_step) * static_cast<int>(shots.size());
     if (done && (static_cast<int>(frames.size()) >= expected || run.clock.NowUs() - quiet_since > wait_after_done)) {
       break;
     }
     // Quiet for several shots: the board's "program done" may have been lost, or the program stopped
-    // (laser safety after an unplug). Ask the board; it restarts the program where it stopped if needed.
+    // (laser safety after an unplug), or the table is still on a long move. Ask the board; it restarts the
+    // program where it stopped if needed (a running program is left alone).
     if (!done && run.clock.NowUs() - quiet_since > wait_after_done) {
-      if (++asks > 3) {
-        return TimeoutError("no trigger or frame for " + std::to_string(wait_after_done / 1000) +
-                            " ms, 3 times: is the camera's trigger input wired to the board?");
+      const int64_t now = run.clock.NowUs();
+      if (now - last_frame_us > kNoFrameUs) {
+        return TimeoutError(std::string(last_edge_us > last_frame_us ? "trigger edges but no frame"
+                                                                     : "no trigger edge and no frame") +
+                            " for " + std::to_string(kNoFrameUs / 1'000'000) +
+                            " s: is the camera's trigger input wired to the board?");
       }
       ROTOSCAN_ASSIGN_OR_RETURN(const auto resumed, run.board.ResumeProgram());
       if (!resumed) done = true;
@@ -329,7 +340,8 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
   }
   for (; tied < frames.size(); ++tied) ROTOSCAN_RETURN_IF_ERROR(tie(tied, tied + 1 == frames.size()));
   std::vector<Shot> missing;
-  for (int s = first_step + step_offset; s < step_offset + step_count; ++s) {
+  for (int i = first_step; i < step_count; ++i) {
+    const int s = i * stride + step_offset;
     for (size_t k = 0; k < shots.size(); ++k) {
       if (got.count({s, static_cast<int>(k)}) == 0 && !run.Done(s, shots[k])) missing.push_back({s, shots[k]});
     }
@@ -337,8 +349,89 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
   return missing;
 }
 
-Status Triggered(Run& run) {
+// One program of a triggered scan: its shots at every `stride`-th step of the scan.
+struct Pass {
+  std::vector<LaserState> shots;
+  int stride = 1;
+};
+
+// The passes of a triggered scan: one program with every shot of a step, or, with a natural frame every k
+// steps (k > 1), the laser shots at every step and then the natural frames in a second program whose moves
+// are k steps long (a board program takes the same shots at each of its steps).
+std::vector<Pass> Passes(const ScanOptions& o) {
+  if (o.natural_every <= 1) return {{Wanted(o, 0), 1}};
+  std::vector<Pass> passes;
+  if (o.lasers) passes.push_back({{LaserState::kLeft, LaserState::kRight, LaserState::kOff}, 1});
+  passes.push_back({{LaserState::kNatural}, o.natural_every});
+  return passes;
+}
+
+Status TriggeredPass(Run& run, const Pass& pass, double motor_steps) {
   const ScanOptions& o = run.options;
+  const double period = 1e6 / o.frame_rate_hz;
+  const int count = (o.steps + pass.stride - 1) / pass.stride;  // program steps: scan steps 0, k, 2k, ...
+  auto pass_done = [&](int i) {
+    for (LaserState s : pass.shots) {
+      if (!run.Done(i * pass.stride, s)) return false;
+    }
+    return true;
+  };
+  int first = 0;
+  while (first < count && pass_done(first)) ++first;
+  if (first >= count) return Status::Ok();
+  CameraSettings settings = run.camera.settings();
+  settings.triggered = true;
+  settings.frame_rate_hz = o.frame_rate_hz;
+  settings.exposure_us = ExposureOf(o, pass.shots.front());
+  settings.exposure_cycle_us.clear();
+  for (LaserState s : pass.shots) settings.exposure_cycle_us.push_back(ExposureOf(o, s));
+  ROTOSCAN_RETURN_IF_ERROR(run.camera.Stop());
+  ROTOSCAN_RETURN_IF_ERROR(run.camera.Configure(settings).status());
+  const int64_t readout = run.camera.capabilities().readout_us;
+  device::ScanProgram program;
+  program.step_count = static_cast<uint32_t>(count);
+  program.steps_per_move = static_cast<int32_t>(std::lround(motor_steps)) * pass.stride;
+  program.settle_us = o.settle_us;
+  program.laser_lead_us = o.laser_lead_us;
+  for (LaserState s : pass.shots) {
+    // The board waits `window` after each edge: the camera's frame period less the board's own
+    // overhead per shot (arm margin + laser lead), and never less than the exposure and readout.
+    const double window = std::max(period - 100.0 - o.laser_lead_us,
+                                   static_cast<double>(ExposureOf(o, s) + readout + 200));
+    program.shots.push_back({MaskOf(s), static_cast<uint32_t>(std::lround(window))});
+  }
+  ROTOSCAN_RETURN_IF_ERROR(program.Check());
+  ROTOSCAN_ASSIGN_OR_RETURN(const BoardChange home, run.board.MoveTo(0.0));
+  (void)home;
+  ROTOSCAN_RETURN_IF_ERROR(run.board.LoadProgram(program));
+  ROTOSCAN_ASSIGN_OR_RETURN(auto missing, TriggeredRun(run, pass.shots, first, count, 0, pass.stride));
+  for (int round = 0; round < o.max_retakes && !missing.empty(); ++round) {
+    std::set<int> steps;
+    for (const Shot& m : missing) steps.insert(m.step);
+    ROTOSCAN_LOG(kInfo) << "re-taking " << missing.size() << " shots at " << steps.size() << " steps";
+    std::vector<Shot> still;
+    for (int step : steps) {
+      ROTOSCAN_ASSIGN_OR_RETURN(const BoardChange moved, run.board.MoveTo(step * run.step_rad));
+      (void)moved;
+      device::ScanProgram one = program;
+      one.step_count = 1;
+      ROTOSCAN_RETURN_IF_ERROR(run.board.LoadProgram(one));
+      const int before = run.summary.frames_used;
+      ROTOSCAN_ASSIGN_OR_RETURN(auto left, TriggeredRun(run, pass.shots, 0, 1, step, 1));
+      run.summary.shots_retaken += run.summary.frames_used - before;
+      still.insert(still.end(), left.begin(), left.end());
+    }
+    missing = std::move(still);
+  }
+  if (!missing.empty()) {
+    return DeviceError(std::to_string(missing.size()) + " shots still missing after " +
+                       std::to_string(o.max_retakes) + " rounds of re-takes (first: step " +
+                       std::to_string(missing.front().step) + " " + bundle::LaserStateName(missing.front().laser) + ")");
+  }
+  return Status::Ok();
+}
+
+Status Triggered(Run& run) {
   const double per_step = run.board.capabilities().degrees_per_step * kPi / 180.0;
   const double motor_steps = run.step_rad / per_step;
   if (std::abs(motor_steps - std::round(motor_steps)) > 1e-6 || std::round(motor_steps) < 1) {
@@ -346,65 +439,34 @@ Status Triggered(Run& run) {
                                 "° is not a whole number of motor steps (" +
                                 std::to_string(run.board.capabilities().degrees_per_step) + "° each)");
   }
-  if (o.natural_every > 1) {
-    return InvalidArgumentError("triggered capture takes the same shots at every step: natural_every must be 0 or 1");
-  }
-  const std::vector<LaserState> shots = Wanted(o, 0);
-  const double period = 1e6 / o.frame_rate_hz;
-  CameraSettings settings = run.camera.settings();
-  settings.triggered = true;
-  settings.frame_rate_hz = o.frame_rate_hz;
-  settings.exposure_us = o.laser_exposure_us;
-  settings.exposure_cycle_us.clear();
-  for (LaserState s : shots) settings.exposure_cycle_us.push_back(ExposureOf(o, s));
-  ROTOSCAN_ASSIGN_OR_RETURN(const CameraSettings applied, run.camera.Configure(settings));
-  const int64_t readout = run.camera.capabilities().readout_us;
-  device::ScanProgram program;
-  program.step_count = static_cast<uint32_t>(o.steps);
-  program.steps_per_move = static_cast<int32_t>(std::lround(motor_steps));
-  program.settle_us = o.settle_us;
-  program.laser_lead_us = o.laser_lead_us;
-  for (LaserState s : shots) {
-    // The board waits `window` after each edge: the camera's frame period less the board's own
-    // overhead per shot (arm margin + laser lead), and never less than the exposure and readout.
-    const double window = std::max(period - 100.0 - o.laser_lead_us,
-                                   static_cast<double>(ExposureOf(o, s) + readout + 200));
-    program.shots.push_back({MaskOf(s), static_cast<uint32_t>(std::lround(window))});
-  }
-  (void)applied;
-  ROTOSCAN_RETURN_IF_ERROR(program.Check());
-  int first = 0;
-  while (first < o.steps && run.StepDone(first)) ++first;
-  if (first < o.steps) {
-    ROTOSCAN_ASSIGN_OR_RETURN(const BoardChange home, run.board.MoveTo(0.0));
-    (void)home;
-    ROTOSCAN_RETURN_IF_ERROR(run.board.LoadProgram(program));
-    ROTOSCAN_ASSIGN_OR_RETURN(auto missing, TriggeredRun(run, shots, first, o.steps, 0));
-    for (int round = 0; round < o.max_retakes && !missing.empty(); ++round) {
-      std::set<int> steps;
-      for (const Shot& m : missing) steps.insert(m.step);
-      ROTOSCAN_LOG(kInfo) << "re-taking " << missing.size() << " shots at " << steps.size() << " steps";
-      std::vector<Shot> still;
-      for (int step : steps) {
-        ROTOSCAN_ASSIGN_OR_RETURN(const BoardChange moved, run.board.MoveTo(step * run.step_rad));
-        (void)moved;
-        device::ScanProgram one = program;
-        one.step_count = 1;
-        ROTOSCAN_RETURN_IF_ERROR(run.board.LoadProgram(one));
-        const int before = run.summary.frames_used;
-        ROTOSCAN_ASSIGN_OR_RETURN(auto left, TriggeredRun(run, shots, 0, 1, step));
-        run.summary.shots_retaken += run.summary.frames_used - before;
-        still.insert(still.end(), left.begin(), left.end());
-      }
-      missing = std::move(still);
-    }
-    if (!missing.empty()) {
-      return DeviceError(std::to_string(missing.size()) + " shots still missing after " +
-                         std::to_string(o.max_retakes) + " rounds of re-takes (first: step " +
-                         std::to_string(missing.front().step) + " " + bundle::LaserStateName(missing.front().laser) + ")");
-    }
-  }
+  for (const Pass& pass : Passes(run.options)) ROTOSCAN_RETURN_IF_ERROR(TriggeredPass(run, pass, motor_steps));
   return run.camera.Stop();
+}
+
+// Hands the frames of a resumed bundle to the observers (ScanOptions::replay_resumed), step by step.
+Status ReplayResumed(Run& run, const bundle::BundleHeader& header) {
+  const ScanOptions& o = run.options;
+  bundle::Bundle partial;
+  partial.directory = run.writer.working_directory();
+  partial.header = header;
+  for (int step = 0; step < o.steps; ++step) {
+    bool any = false;
+    for (LaserState s : Wanted(o, step)) {
+      bundle::FrameRecord record;
+      record.file = bundle::FrameFileName(step, s, o.pose);
+      if (!run.writer.HasFrame(record.file)) continue;
+      any = true;
+      if (!o.on_frame) continue;
+      ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat image, bundle::ReadFrame(partial, record));
+      Frame frame;
+      frame.image = std::move(image);
+      frame.exposure_us = ExposureOf(o, s);
+      CapturedFrame c{step, s, step * run.step_rad, &frame, true};
+      ROTOSCAN_RETURN_IF_ERROR(o.on_frame(c));
+    }
+    if (any && run.StepDone(step) && o.on_step_done) o.on_step_done(step);
+  }
+  return Status::Ok();
 }
 
 }  // namespace
@@ -479,6 +541,9 @@ Result<ScanSummary> RunScan(Board& board, Camera& camera, Clock& clock, const st
       ++summary.steps_resumed;
       scope.Advance();
     }
+  }
+  if (options.resume && options.replay_resumed && writer->resumed_frame_count() > 0) {
+    ROTOSCAN_RETURN_IF_ERROR(ReplayResumed(run, header));
   }
   const int64_t start = clock.NowUs();
   Status status = board.EnableMotor(true);

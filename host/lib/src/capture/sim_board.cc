@@ -19,6 +19,7 @@
 #include "rotoscan/capture/virtual_rig.h"
 #include "rotoscan/device/transport.h"
 #include "sim_port.h"
+#include "sim_rig_truth.h"
 
 namespace rotoscan::capture {
 namespace {
@@ -90,100 +91,11 @@ class SimTransport : public device::Transport {
   long long chunks_ = 0;
 };
 
-// The pin-edge log as timelines on the host clock.
-class SimRigTruth : public RigTruth {
- public:
-  SimRigTruth(int64_t host_offset_us, double radians_per_step)
-      : offset_(host_offset_us), radians_per_step_(radians_per_step) {}
-
-  void LaserFractions(int64_t from_us, int64_t to_us, double* left, double* right) override {
-    Update();
-    *left = Fraction(0, from_us, to_us);
-    *right = Fraction(1, from_us, to_us);
-  }
-  double TableAngleAt(int64_t us) override {
-    Update();
-    const auto it = std::upper_bound(step_times_.begin(), step_times_.end(), us);
-    const auto index = static_cast<size_t>(it - step_times_.begin());
-    return (index == 0 ? 0 : step_positions_[index - 1]) * radians_per_step_;
-  }
-  std::vector<int64_t> TriggerEdges(int64_t after_us, int64_t until_us) override {
-    Update();
-    std::vector<int64_t> out;
-    auto it = std::upper_bound(triggers_.begin(), triggers_.end(), after_us);
-    for (; it != triggers_.end() && *it <= until_us; ++it) out.push_back(*it);
-    return out;
-  }
-  std::vector<int64_t> LaserSwitches(int64_t from_us, int64_t to_us) override {
-    Update();
-    std::vector<int64_t> out;
-    for (int laser = 0; laser < 2; ++laser) {
-      for (const auto& [t, level] : laser_[laser]) {
-        if (t >= from_us && t <= to_us) out.push_back(t);
-      }
-    }
-    std::sort(out.begin(), out.end());
-    return out;
-  }
-
- private:
-  void Update() {
-    const size_t count = sim_edge_count();
-    const sim_edge_t* edges = sim_edges();
-    for (; seen_ < count; ++seen_) {
-      const sim_edge_t& e = edges[seen_];
-      const int64_t t = static_cast<int64_t>(e.time_us) + offset_;
-      switch (e.pin) {
-        case SIM_PIN_LASER_LEFT: laser_[0].emplace_back(t, e.level != 0); break;
-        case SIM_PIN_LASER_RIGHT: laser_[1].emplace_back(t, e.level != 0); break;
-        case SIM_PIN_DIR: dir_ = e.level ? 1 : -1; break;
-        case SIM_PIN_STEP:
-          if (e.level) {
-            position_ += dir_;
-            step_times_.push_back(t);
-            step_positions_.push_back(position_);
-          }
-          break;
-        case SIM_PIN_TRIGGER:
-          if (e.level) triggers_.push_back(t);
-          break;
-        default: break;
-      }
-    }
-  }
-  // Fraction of [from, to) during which laser `i` was on.
-  double Fraction(int i, int64_t from, int64_t to) const {
-    if (to <= from) return 0.0;
-    const auto& timeline = laser_[i];
-    auto it = std::upper_bound(timeline.begin(), timeline.end(), std::make_pair(from, true));
-    bool level = it == timeline.begin() ? false : std::prev(it)->second;
-    int64_t t = from;
-    int64_t on = 0;
-    for (; it != timeline.end() && it->first < to; ++it) {
-      if (level) on += it->first - t;
-      t = it->first;
-      level = it->second;
-    }
-    if (level) on += to - t;
-    return static_cast<double>(on) / static_cast<double>(to - from);
-  }
-
-  int64_t offset_;
-  double radians_per_step_;
-  size_t seen_ = 0;
-  int dir_ = 1;
-  int32_t position_ = 0;
-  std::vector<std::pair<int64_t, bool>> laser_[2];
-  std::vector<int64_t> step_times_;
-  std::vector<int32_t> step_positions_;
-  std::vector<int64_t> triggers_;
-};
-
 // The client board, plus what the simulator owns: the clock listener, the truth and the global flag.
 class SimBoardHolder : public Board {
  public:
   SimBoardHolder(std::unique_ptr<internal::ClientBoard> board, std::shared_ptr<VirtualClock> clock, int listener,
-                 std::unique_ptr<SimRigTruth> truth)
+                 std::unique_ptr<internal::SimRigTruth> truth)
       : board_(std::move(board)), clock_(std::move(clock)), listener_(listener), truth_(std::move(truth)) {}
   ~SimBoardHolder() override {
     board_.reset();
@@ -215,7 +127,7 @@ class SimBoardHolder : public Board {
   std::unique_ptr<internal::ClientBoard> board_;
   std::shared_ptr<VirtualClock> clock_;
   int listener_;
-  std::unique_ptr<SimRigTruth> truth_;
+  std::unique_ptr<internal::SimRigTruth> truth_;
 };
 
 Result<std::unique_ptr<Board>> OpenSimBoard(const std::string& argument, OpenContext* context) {
@@ -282,7 +194,7 @@ Result<std::unique_ptr<Board>> OpenSimBoard(const std::string& argument, OpenCon
     return board.status();
   }
   release.armed = false;
-  auto truth = std::make_unique<SimRigTruth>(offset, 2.0 * 3.14159265358979323846 / steps_per_rev);
+  auto truth = std::make_unique<internal::SimRigTruth>(offset, 2.0 * 3.14159265358979323846 / steps_per_rev);
   return std::unique_ptr<Board>(
       std::make_unique<SimBoardHolder>(std::move(board).value(), clock, listener, std::move(truth)));
 }

@@ -2,6 +2,9 @@
 // CLOCK_MONOTONIC clock. `usb` opens the first board; `usb:SERIAL` the one whose unique id (GET_INFO)
 // is SERIAL, or `usb:BUS-ADDRESS` ("1-7") the one at that bus and address. An unplug is handled by the
 // client (re-open and carry on) and a program stopped meanwhile is resumed (client_board.cc).
+//
+// Backend options: steps_per_rev (motor steps per table turn, default 19200), reconnect_ms (how long the
+// client tries to re-open a board that went away before the scan fails, default 5000).
 #include <cstdio>
 
 #include "backend_options.h"
@@ -14,9 +17,13 @@ namespace {
 
 Result<std::unique_ptr<Board>> OpenUsbBoard(const std::string& argument, OpenContext* context) {
   ROTOSCAN_ASSIGN_OR_RETURN(const auto options,
-                            internal::BackendOptions::Parse(context->options, "usb", {"steps_per_rev"}));
+                            internal::BackendOptions::Parse(context->options, "usb", {"steps_per_rev", "reconnect_ms"}));
   ROTOSCAN_ASSIGN_OR_RETURN(const double steps_per_rev, options.Number("steps_per_rev", 19200));
+  ROTOSCAN_ASSIGN_OR_RETURN(const double reconnect_ms, options.Number("reconnect_ms", 5000));
   if (!(steps_per_rev >= 1 && steps_per_rev <= 1e7)) return InvalidArgumentError("usb: steps_per_rev out of range");
+  if (!(reconnect_ms >= 0 && reconnect_ms <= 600'000)) return InvalidArgumentError("usb: reconnect_ms out of range");
+  device::ClientOptions client_options;
+  client_options.reconnect_timeout_us = static_cast<int64_t>(reconnect_ms * 1000);
   if (!context->clock) context->clock = MakeRealClock();
   if (context->clock->is_virtual()) return InvalidArgumentError("the usb board runs on the real clock, not a virtual one");
 
@@ -31,10 +38,15 @@ Result<std::unique_ptr<Board>> OpenUsbBoard(const std::string& argument, OpenCon
   }
   for (const auto& b : candidates) {
     device::LibusbTransportOptions transport_options;
-    transport_options.bus = b.bus;
-    transport_options.address = b.address;
+    // A re-plugged board comes back at a new address: with one board attached the transport opens "the
+    // first board" so that the client's re-open after an unplug finds it again. With several, it is pinned
+    // to this one's bus and address (a re-plug then ends the scan: resume it).
+    if (by_address || boards.size() > 1) {
+      transport_options.bus = b.bus;
+      transport_options.address = b.address;
+    }
     ROTOSCAN_ASSIGN_OR_RETURN(auto transport, device::MakeLibusbTransport(transport_options));
-    auto client = device::Client::Connect(std::move(transport));
+    auto client = device::Client::Connect(std::move(transport), client_options);
     if (!client.ok()) {
       if (candidates.size() == 1) return client.status();
       continue;

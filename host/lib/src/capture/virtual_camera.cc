@@ -27,6 +27,7 @@
 #include "rotoscan/capture/virtual_rig.h"
 #include "rotoscan/sim/renderer.h"
 #include "rotoscan/sim/scene.h"
+#include "virtual_render.h"
 
 namespace rotoscan::capture {
 namespace {
@@ -56,7 +57,7 @@ class VirtualCamera : public Camera {
     settings_.width = scene.rig.camera.width;
     settings_.height = scene.rig.camera.height;
     settings_.exposure_us = static_cast<int64_t>(scene.sensor.laser_exposure_us);
-    natural_threshold_us_ = std::sqrt(scene.sensor.laser_exposure_us * scene.sensor.natural_exposure_us);
+    natural_threshold_us_ = internal::NaturalThresholdUs(scene);
     UpdateReadout();
   }
 
@@ -192,51 +193,9 @@ class VirtualCamera : public Camera {
   }
 
   cv::Mat Render(const Frame& frame) {
-    const int h = settings_.height;
-    const int64_t mid = frame.exposure_start_us + (frame.readout_us + frame.exposure_us) / 2;
-    const double angle = truth_->TableAngleAt(mid);
     const bool natural = static_cast<double>(frame.exposure_us) >= natural_threshold_us_;
-    // Per row, the fraction of its exposure each laser was lit.
-    std::vector<double> fl(static_cast<size_t>(h)), fr(static_cast<size_t>(h));
-    bool any_left = false, any_right = false;
-    for (int r = 0; r < h; ++r) {
-      const int64_t s = frame.exposure_start_us + (h > 1 ? frame.readout_us * r / (h - 1) : 0);
-      if (r == 0 || frame.readout_us > 0) truth_->LaserFractions(s, s + frame.exposure_us, &fl[r], &fr[r]);
-      else { fl[r] = fl[0]; fr[r] = fr[0]; }
-      any_left |= fl[r] > 0;
-      any_right |= fr[r] > 0;
-    }
-    sim::FrameMask mask{any_left, any_right, true, natural};
-    const auto step = renderer_->RenderStep(angle, sim::FrameSeed(renderer_->scene().seed, -1,
-                                                                   static_cast<int>(frame.frame_id), 0), mask);
-    const cv::Mat& off = step.frames[2];
-    cv::Mat base = natural ? step.frames[3] : off;
-    cv::Mat out;
-    if (!any_left && !any_right) {
-      out = base.clone();
-    } else {
-      cv::Mat acc;
-      base.convertTo(acc, CV_32FC3);
-      cv::Mat off_f;
-      off.convertTo(off_f, CV_32FC3);
-      for (int laser = 0; laser < 2; ++laser) {
-        const auto& f = laser == 0 ? fl : fr;
-        if (!(laser == 0 ? any_left : any_right)) continue;
-        cv::Mat lit;
-        step.frames[static_cast<size_t>(laser)].convertTo(lit, CV_32FC3);
-        lit -= off_f;
-        for (int r = 0; r < h; ++r) {
-          if (f[static_cast<size_t>(r)] > 0) acc.row(r) += lit.row(r) * f[static_cast<size_t>(r)];
-        }
-      }
-      acc.convertTo(out, CV_8UC3);  // saturates
-    }
-    if (settings_.format == PixelFormat::kGray8) {
-      cv::Mat gray;
-      cv::cvtColor(out, gray, cv::COLOR_BGR2GRAY);
-      return gray;
-    }
-    return out;
+    return internal::RenderExposure(*renderer_, *truth_, frame.exposure_start_us, frame.exposure_us, frame.readout_us,
+                                    frame.frame_id, natural, settings_.format);
   }
 
   std::unique_ptr<sim::Renderer> renderer_;
@@ -261,6 +220,61 @@ class VirtualCamera : public Camera {
   std::deque<int64_t> pending_edges_;
   std::deque<Frame> repeat_;
 };
+
+}  // namespace
+
+namespace internal {
+
+cv::Mat RenderExposure(sim::Renderer& renderer, RigTruth& truth, int64_t exposure_start_us, int64_t exposure_us,
+                       int64_t readout_us, uint64_t frame_id, bool natural, PixelFormat format) {
+  const int h = renderer.scene().rig.camera.height;
+  const int64_t mid = exposure_start_us + (readout_us + exposure_us) / 2;
+  const double angle = truth.TableAngleAt(mid);
+  // Per row, the fraction of its exposure each laser was lit.
+  std::vector<double> fl(static_cast<size_t>(h)), fr(static_cast<size_t>(h));
+  bool any_left = false, any_right = false;
+  for (int r = 0; r < h; ++r) {
+    const int64_t s = exposure_start_us + (h > 1 ? readout_us * r / (h - 1) : 0);
+    if (r == 0 || readout_us > 0) truth.LaserFractions(s, s + exposure_us, &fl[r], &fr[r]);
+    else { fl[r] = fl[0]; fr[r] = fr[0]; }
+    any_left |= fl[r] > 0;
+    any_right |= fr[r] > 0;
+  }
+  sim::FrameMask mask{any_left, any_right, true, natural};
+  const auto step = renderer.RenderStep(angle, sim::FrameSeed(renderer.scene().seed, -1, static_cast<int>(frame_id), 0), mask);
+  const cv::Mat& off = step.frames[2];
+  cv::Mat base = natural ? step.frames[3] : off;
+  cv::Mat out;
+  if (!any_left && !any_right) {
+    out = base.clone();
+  } else {
+    cv::Mat acc;
+    base.convertTo(acc, CV_32FC3);
+    cv::Mat off_f;
+    off.convertTo(off_f, CV_32FC3);
+    for (int laser = 0; laser < 2; ++laser) {
+      const auto& f = laser == 0 ? fl : fr;
+      if (!(laser == 0 ? any_left : any_right)) continue;
+      cv::Mat lit;
+      step.frames[static_cast<size_t>(laser)].convertTo(lit, CV_32FC3);
+      lit -= off_f;
+      for (int r = 0; r < h; ++r) {
+        if (f[static_cast<size_t>(r)] > 0) acc.row(r) += lit.row(r) * f[static_cast<size_t>(r)];
+      }
+    }
+    acc.convertTo(out, CV_8UC3);  // saturates
+  }
+  if (format == PixelFormat::kGray8) {
+    cv::Mat gray;
+    cv::cvtColor(out, gray, cv::COLOR_BGR2GRAY);
+    return gray;
+  }
+  return out;
+}
+
+}  // namespace internal
+
+namespace {
 
 Result<std::unique_ptr<Camera>> OpenVirtualCamera(const std::string& argument, const OpenContext& context) {
   if (!argument.empty()) return InvalidArgumentError("camera 'virtual' takes no argument (got '" + argument + "')");

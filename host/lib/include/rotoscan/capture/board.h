@@ -92,7 +92,7 @@ class Board {
   // *program_done set once the program finished (when non-null).
   virtual Result<std::optional<TriggerEdge>> NextTrigger(int64_t timeout_us, bool* program_done);
   // After an unplug or a safety stop: restarts the program where the board says it stopped (nullopt when
-  // it had finished).
+  // it had finished; the next step, untouched, when it is still running).
   virtual Result<std::optional<uint32_t>> ResumeProgram();
   // Tells the board the host is alive, during a long program with no other command (our board stops a
   // program and turns the lasers off after a silence: laser safety). Call it at least every 0.5 s.

@@ -47,6 +47,9 @@ struct CapturedFrame {
   bundle::LaserState laser = bundle::LaserState::kOff;
   double table_angle_rad = 0.0;
   const Frame* frame = nullptr;  // with its exposure window on the scan's clock
+  // Written before an interruption and read back from the partial bundle (ScanOptions::replay_resumed):
+  // only frame->image and frame->exposure_us mean anything.
+  bool resumed = false;
 };
 
 struct ScanOptions {
@@ -56,7 +59,7 @@ struct ScanOptions {
   double frame_rate_hz = 30.0;
   int64_t laser_exposure_us = 2000;     // left, right, off
   int64_t natural_exposure_us = 20000;  // natural (color)
-  int natural_every = 1;                // a natural frame every k steps (0: none)
+  int natural_every = 1;                // a natural frame every k steps (0: none); triggered: a second program
   bool lasers = true;                   // false: natural frames only (calibration views)
   bundle::BundleHeader header;          // camera, device, kind, target; table_step is set from step_deg
   bool resume = false;
@@ -72,6 +75,9 @@ struct ScanOptions {
   std::function<Status(const CapturedFrame&)> on_frame;
   // Called when every frame of a step is written (live processing).
   std::function<void(int step)> on_step_done;
+  // With resume: hand the frames written before the interruption to on_frame (CapturedFrame::resumed) and
+  // on_step_done first, read back from the partial bundle, so that live processing covers the whole scan.
+  bool replay_resumed = false;
   Status Check() const;
 };
 
