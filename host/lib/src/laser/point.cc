@@ -1,0 +1,160 @@
+// Step 5 of the row loop (design notes in extract.cc, "Uncertainty" and "Estimators"): a row's point from
+// its chosen candidate; and the estimators themselves (EstimateCentre).
+#include <algorithm>
+#include <cmath>
+
+#include "extract_steps.h"
+#include "kernels.h"
+#include "rotoscan/core/check.h"
+
+namespace rotoscan::laser {
+
+double EstimateCentre(Estimator estimator, const uint8_t* d, int size, int first, int last, int peak) {
+  ROTOSCAN_CHECK(first >= 0 && last < size && first <= last) << "run [" << first << ", " << last << "]";
+  switch (estimator) {
+    case Estimator::kCenterOfMass: {
+      const int level = detail::kComLevelNum * peak;
+      while (first > 0 && detail::kComScale * d[first - 1] > level) --first;
+      while (last < size - 1 && detail::kComScale * d[last + 1] > level) ++last;
+      return detail::CenterOfMassOver(d, first, last, peak);
+    }
+    case Estimator::kParabolic:
+    case Estimator::kGaussian: {
+      int pa = first;
+      while (pa <= last && d[pa] != peak) ++pa;
+      if (pa > last) return -1.0;
+      int pb = pa;
+      while (pb + 1 <= last && d[pb + 1] == peak) ++pb;
+      const double mid = 0.5 * (pa + pb);
+      if (pa == 0 || pb == size - 1) return mid;
+      double l = d[pa - 1], c = peak, r = d[pb + 1];
+      if (estimator == Estimator::kGaussian) {
+        l = std::log(std::max(l, 0.5));
+        c = std::log(std::max(c, 0.5));
+        r = std::log(std::max(r, 0.5));
+      }
+      const double denominator = l - 2 * c + r;
+      if (denominator >= 0) return mid;
+      const double delta = 0.5 * (l - r) / denominator;
+      return mid + std::clamp(delta, -0.5, 0.5);
+    }
+    case Estimator::kZeroCrossing: {
+      const int k = std::max(1, static_cast<int>(std::lround(0.5 * (last - first + 1))));
+      auto g = [&](int i) {
+        const int hi = std::min(i + k, size - 1);
+        const int lo = std::max(i - k, 0);
+        return int{d[hi]} - int{d[lo]};
+      };
+      // g is positive on the rising flank and negative on the falling one; find the crossing nearest
+      // the middle of the run.
+      const double mid = 0.5 * (first + last);
+      double best = -1.0;
+      for (int i = first - 1; i <= last; ++i) {
+        if (i < 0 || i + 1 >= size) continue;
+        const int gi = g(i);
+        if (gi <= 0) continue;
+        int j = i + 1;
+        while (j <= last + 1 && j < size && g(j) == 0) ++j;
+        if (j >= size || g(j) >= 0) continue;
+        const double x = (j == i + 1) ? i + static_cast<double>(gi) / (gi - g(j)) : 0.5 * (i + j);
+        if (best < 0 || std::abs(x - mid) < std::abs(best - mid)) best = x;
+      }
+      return best;
+    }
+  }
+  return -1.0;
+}
+
+namespace detail {
+
+bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
+                  const ExtractOptions& o, const FrameScale& frame, uint8_t flags, LinePoint* point, double* column_out) {
+  double column;
+  if (o.estimator == Estimator::kCenterOfMass) {  // EstimateCentre's, with the vector extent scans
+    column = CenterOfMassOver(d, c.com_first, c.com_last, c.peak);
+  } else {
+    column = EstimateCentre(o.estimator, d, cols, c.first, c.last, c.peak);
+  }
+  if (column < 0) return false;
+  if (a[c.peak_pos] == 255) {
+    flags |= kFlagSaturated;
+    // A notch: a saturated pixel of the line whose own difference is below half the line's best.
+    int best_difference = 0, worst_saturated = 255;
+    for (int i = c.first; i <= c.last; ++i) {
+      const int x = a[i] > b[i] ? a[i] - b[i] : 0;
+      best_difference = std::max(best_difference, x);
+      if (a[i] == 255) worst_saturated = std::min(worst_saturated, x);
+    }
+    if (2 * worst_saturated < best_difference) flags |= kFlagNotched;
+  }
+  if (c.first == 0 || c.last == cols - 1) flags |= kFlagClipped;
+  const double width = c.Width();
+  // Uncertainty (see the design notes): noise, speckle and the profile's asymmetry.
+  const double asymmetry = column - 0.5 * (c.first + c.last);
+  const double noise_term = frame.noise_dn / c.peak * std::sqrt(width * (1.0 / 12.0));
+  // Texture across the line: the laser's reflection is weighed by the albedo, which the laser-off frame
+  // shows; an albedo that differs between the line's two halves pulls the centre towards the brighter
+  // one, by up to a quarter of the width for a step across the middle.
+  double texture_term = 0.0;
+  {
+    const int middle = static_cast<int>(column + 0.5);
+    int left = 0, right = 0;
+    for (int i = c.com_first; i < middle; ++i) left += b[i];
+    for (int i = middle + 1; i <= c.com_last; ++i) right += b[i];
+    const int nl = std::max(1, middle - c.com_first), nr = std::max(1, c.com_last - middle);
+    const double ml = static_cast<double>(left) / nl, mr = static_cast<double>(right) / nr;
+    texture_term = 0.25 * width * std::abs(ml - mr) / std::max(1.0, ml + mr);
+  }
+  const double uncertainty = 2.0 * std::sqrt(noise_term * noise_term + kSpeckleTerm2 * width +
+                                             asymmetry * asymmetry + texture_term * texture_term);
+  double quality = 1.0;
+  if (frame.noise_dn > 0) quality *= std::min(1.0, c.peak * frame.quality_per_snr);
+  quality *= std::min(1.0, (c.peak - 0.5 * frame.threshold) * frame.quality_per_contrast);
+  if (width < frame.narrow_width || width > frame.wide_width) quality *= 0.6;
+  if (flags & kFlagMultiplePeaks) quality *= 0.5;
+  if (flags & kFlagClipped) quality *= 0.3;
+  if (flags & kFlagStrongerRejected) quality *= 0.5;
+  quality /= 1.0 + uncertainty * uncertainty;
+  LinePoint p;
+  p.row = row;
+  p.column = static_cast<float>(column);
+  p.peak = static_cast<float>(c.peak);
+  p.width = static_cast<float>(width);
+  p.quality = static_cast<float>(std::clamp(quality, 0.0, 1.0));
+  p.uncertainty_px = static_cast<float>(uncertainty);
+  if (std::abs(asymmetry) > 0.25 * width) flags |= kFlagLopsided;
+  p.flags = flags;
+  *point = p;
+  *column_out = column;
+  return true;
+}
+
+void GrowUncertaintyWithSlope(std::vector<LinePoint>* line_points) {
+  // A steep line (a surface seen at a grazing angle: the line runs along the rows) has a poorly defined
+  // centre per row: an error of the profile along the row is the slope times one across it. The
+  // uncertainty grows by sqrt(1 + slope^2), the slope from the neighbouring rows' centres.
+  std::vector<LinePoint>& points = *line_points;
+  const size_t n = points.size();
+  float before = 0.0f;
+  for (size_t i = 0; i < n; ++i) {
+    const LinePoint& p = points[i];
+    const bool up = i > 0 && points[i - 1].row + 1 == p.row;
+    const bool down = i + 1 < n && points[i + 1].row == p.row + 1;
+    const float here = p.column;
+    float slope = 0.0f;
+    if (up && down) {
+      slope = 0.5f * (points[i + 1].column - before);
+    } else if (up) {
+      slope = here - before;
+    } else if (down) {
+      slope = points[i + 1].column - here;
+    }
+    before = here;
+    const float grow = 1.0f + slope * slope;
+    points[i].uncertainty_px *= std::sqrt(grow);
+    points[i].quality /= grow;
+  }
+}
+
+}  // namespace detail
+}  // namespace rotoscan::laser
