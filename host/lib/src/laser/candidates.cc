@@ -19,14 +19,7 @@ int FindCandidates(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, int
       // Saturated laser-on pixels were set to 255 by step 1 (a notch cannot split the line); their
       // difference is clipped, so they all take the run's highest true difference among them, the
       // plateau a saturated line has (DESIGN.md), and the candidate is measured on that.
-      int plateau = 0;
-      for (int i = run_first; i <= run_last; ++i) {
-        if (a[i] == 255) plateau = std::max(plateau, 255 - b[i]);
-      }
-      for (int i = run_first; i <= run_last; ++i) {
-        if (a[i] == 255 && b[i] <= 255 - threshold) d[i] = static_cast<uint8_t>(plateau);
-      }
-      found = FindPeak(d, run_first, run_last);
+      found = FillPlateau(a, b, d, run_first, run_last, cols, threshold);
     }
     c.peak_pos = found.position;
     c.peak = found.value;

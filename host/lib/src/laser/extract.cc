@@ -261,6 +261,13 @@ constexpr int kBandRows = 32;
 // 2-4 rows ahead ~170 µs, 1 or 8 rows ~180-190 µs).
 constexpr int kPrefetchRows = 3;
 
+namespace {
+std::vector<detail::PointTerms>& PointTermsScratch() {
+  thread_local std::vector<detail::PointTerms> terms;
+  return terms;
+}
+}  // namespace
+
 Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int channel, Line* line) {
   using detail::kPad;
   const ExtractOptions& o = options_;
@@ -318,6 +325,11 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
 
   const bool centre_of_mass = o.estimator == Estimator::kCenterOfMass;
   std::array<detail::Candidate, 32> candidates;
+  // Step 5's terms per point, scored after the loop: per thread (one extractor per thread), so that the
+  // public class keeps its layout; allocation-free from the second frame on. Sized for every row up front
+  // (the thread-local is looked up once, not per row).
+  std::vector<detail::PointTerms>& terms = PointTermsScratch();
+  if (terms.size() < static_cast<size_t>(rows)) terms.resize(static_cast<size_t>(rows));
   double previous_column = -1.0;
   int previous_row = -10;
   for (int r = 0; r < rows; ++r) {
@@ -359,19 +371,22 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     const bool continuous = previous_column >= 0 && r - previous_row <= 2;
     const int best = detail::ChooseCandidate(candidates.data(), count, o, previous_column, continuous, &stats, &flags);
     if (best < 0) continue;
-    // Step 5: the point (point.cc).
-    LinePoint p;
+    // Step 5: the point (point.cc); its uncertainty and quality after the loop.
     double column;
-    if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, frame, flags, &p, &column)) {
+    const size_t index = line->points.size();
+    LinePoint& p = line->points.emplace_back();
+    if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, flags, &p, &terms[index],
+                              &column)) {
+      line->points.pop_back();
       ++stats.bad_width;
       continue;
     }
-    line->points.push_back(p);
     ++stats.found;
     if (p.flags & kFlagMultiplePeaks) ++stats.multiple_peaks;
     previous_column = column;
     previous_row = r;
   }
+  detail::ScorePoints(terms.data(), frame, &line->points);
   detail::GrowUncertaintyWithSlope(&line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;

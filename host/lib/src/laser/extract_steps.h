@@ -46,6 +46,18 @@ struct PeakInRun {
   int position = 0;
 };
 
+// ScanNotch's result (kernels.h): the highest difference over a run, and the lowest among its saturated
+// laser-on pixels (255 when there is none).
+struct NotchScan {
+  int best_difference = 0;
+  int worst_saturated = 255;
+};
+
+// SumsAround's result (kernels.h): sums of a row either side of a pixel.
+struct SidesSum {
+  int left = 0, right = 0;
+};
+
 struct Candidate {
   int peak_pos = 0;  // first pixel at the peak value
   int peak = 0;
@@ -94,11 +106,27 @@ struct FrameScale {
   double narrow_width = 0, wide_width = 0;  // the quality falls outside these widths
 };
 
-// Step 5: the point of row `row` from its chosen candidate, and its centre in double in *column (the next
-// row's continuity test reads it); false when the estimator fails (counted as bad width by the caller).
-// `flags` are step 4's; kFlagLopsided may be set (cleared at the end).
+// What step 5 measures in the row (MeasurePoint) for the uncertainty and quality, which ScorePoints
+// computes after the row loop for all points at once: their divisions and square roots, one chain per
+// point, then overlap instead of each waiting within its row (laser_bench: 10-15 % of a frame).
+struct PointTerms {
+  double column;            // the centre, px
+  double extent_middle;     // the middle of the half-maximum extent, px
+  double width_num, width_den;  // the width at half maximum, their ratio
+  double peak;              // DN
+  double left, right;       // sums of the laser-off row over the centre of mass's run either side of
+  double left_n, right_n;   // the centre's pixel, and their pixel counts (at least 1)
+};
+
+// Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
+// of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test
+// reads it); false when the estimator fails (counted as bad width by the caller). `flags` are step 4's.
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
-                  const ExtractOptions& o, const FrameScale& frame, uint8_t flags, LinePoint* point, double* column);
+                  const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column);
+
+// Step 5, after the row loop: each point's width, uncertainty and quality from its terms; sets
+// kFlagLopsided (cleared at the end).
+void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
 
 // A steep line (the line runs along the rows) has a poorly defined centre per row: uncertainty and
 // quality scaled by the slope from the neighbouring rows' centres.

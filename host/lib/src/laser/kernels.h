@@ -30,16 +30,24 @@ namespace rotoscan::laser::detail {
 using sse2::CenterOfMassOver;
 using sse2::ExtentLeft;
 using sse2::ExtentRight;
+using sse2::FillPlateau;
 using sse2::FindPeak;
 using sse2::OutlierBits;
+using sse2::ScanNotch;
 using sse2::ScreenWindows;
+using sse2::SumRange;
+using sse2::SumsAround;
 #else
 using scalar::CenterOfMassOver;
 using scalar::ExtentLeft;
 using scalar::ExtentRight;
+using scalar::FillPlateau;
 using scalar::FindPeak;
 using scalar::OutlierBits;
+using scalar::ScanNotch;
 using scalar::ScreenWindows;
+using scalar::SumRange;
+using scalar::SumsAround;
 #endif
 
 // OutlierBits of every point k in [k0, k1) of a stretch that the screen flagged (bit k - k0 of

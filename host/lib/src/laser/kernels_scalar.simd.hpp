@@ -50,6 +50,46 @@ inline PeakInRun FindPeak(const uint8_t* d, int first, int last) {
   return peak;
 }
 
+// Step 3's notch filling (candidates.cc) over the run [first, last] of a row of `cols` pixels: the
+// saturated laser-on pixels (a == 255) over an off pixel with headroom (b <= 255 - threshold) take the
+// run's plateau, the highest 255 - b among the saturated ones. Returns the run's peak afterwards.
+inline PeakInRun FillPlateau(const uint8_t* a, const uint8_t* b, uint8_t* d, int first, int last, int /*cols*/,
+                             int threshold) {
+  int plateau = 0;
+  for (int i = first; i <= last; ++i) {
+    if (a[i] == 255) plateau = std::max(plateau, 255 - b[i]);
+  }
+  for (int i = first; i <= last; ++i) {
+    if (a[i] == 255 && b[i] <= 255 - threshold) d[i] = static_cast<uint8_t>(plateau);
+  }
+  return FindPeak(d, first, last);
+}
+
+// Step 5's notch test (point.cc) over [first, last]: the highest difference max(a - b, 0), and the lowest
+// one among the saturated laser-on pixels (255 when there is none).
+inline NotchScan ScanNotch(const uint8_t* a, const uint8_t* b, int first, int last, int /*cols*/) {
+  NotchScan scan;
+  for (int i = first; i <= last; ++i) {
+    const int x = a[i] > b[i] ? a[i] - b[i] : 0;
+    scan.best_difference = std::max(scan.best_difference, x);
+    if (a[i] == 255) scan.worst_saturated = std::min(scan.worst_saturated, x);
+  }
+  return scan;
+}
+
+// The sum of b[i] over [first, last] (0 when last < first) in a row of `cols` pixels.
+inline int SumRange(const uint8_t* b, int first, int last, int /*cols*/) {
+  int sum = 0;
+  for (int i = first; i <= last; ++i) sum += b[i];
+  return sum;
+}
+
+// The sums of b over [first, middle - 1] and [middle + 1, last] of a row of `cols` pixels (either empty
+// when its end is before its start).
+inline SidesSum SumsAround(const uint8_t* b, int first, int middle, int last, int cols) {
+  return {SumRange(b, first, middle - 1, cols), SumRange(b, middle + 1, last, cols)};
+}
+
 // Step 1 of the row pass (row_pass.cc) from pixel *next to the row's end, in 16-pixel groups: d = the
 // saturating difference a - b, 255 where a is saturated over a b with headroom (b <= 255 - threshold),
 // and per group the bits of d >= threshold, pushed as (start, mask) at starts/masks[count...] when not

@@ -24,15 +24,19 @@ inline double CenterOfMassOver(const uint8_t* d, int first, int last, int peak) 
   // 8 pixels at a time in 16-bit lanes: w = max(0, 20 d - level) <= 5100 and the offset i - first, their
   // products summed in pairs by madd into 32-bit lanes. Over the first 1024 pixels a lane's sum stays
   // below 5100 * 1024^2 / 2 / 4 < 2^31; a longer run (never a laser line) finishes in the scalar loop.
+  // The last group's lanes past `last` are cleared (the row is padded with kPad bytes after its end).
   const __m128i scale = _mm_set1_epi16(kComScale);
   const __m128i lv = _mm_set1_epi16(static_cast<int16_t>(level));
   const __m128i ones = _mm_set1_epi16(1);
-  __m128i offset = _mm_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m128i lanes = _mm_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7);
+  __m128i offset = lanes;
   const __m128i eight = _mm_set1_epi16(8);
   __m128i acc_w = _mm_setzero_si128(), acc_wx = _mm_setzero_si128();
-  for (; i + 8 <= last + 1 && i + 8 - first <= 1024; i += 8) {
+  for (; i <= last && i + 8 - first <= 1024; i += 8) {
     const __m128i v = _mm_unpacklo_epi8(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(d + i)), _mm_setzero_si128());
-    const __m128i w = _mm_max_epi16(_mm_sub_epi16(_mm_mullo_epi16(v, scale), lv), _mm_setzero_si128());
+    const __m128i in_run = _mm_cmpgt_epi16(_mm_set1_epi16(static_cast<int16_t>(std::min(8, last + 1 - i))), lanes);
+    const __m128i w =
+        _mm_and_si128(in_run, _mm_max_epi16(_mm_sub_epi16(_mm_mullo_epi16(v, scale), lv), _mm_setzero_si128()));
     acc_w = _mm_add_epi32(acc_w, _mm_madd_epi16(w, ones));
     acc_wx = _mm_add_epi32(acc_wx, _mm_madd_epi16(w, offset));
     offset = _mm_add_epi16(offset, eight);
@@ -106,6 +110,104 @@ inline PeakInRun FindPeak(const uint8_t* d, int first, int last) {
     }
   }
   return peak;
+}
+
+// The lanes k of a 16-byte vector with lo <= k <= hi (either may lie outside 0..15).
+inline __m128i LaneRange(int lo, int hi) {
+  const __m128i lane = _mm_setr_epi8(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const int l = std::clamp(lo, -1, 16) - 1, h = std::clamp(hi, -1, 16) + 1;
+  return _mm_and_si128(_mm_cmpgt_epi8(lane, _mm_set1_epi8(static_cast<char>(l))),
+                       _mm_cmpgt_epi8(_mm_set1_epi8(static_cast<char>(h)), lane));
+}
+
+// Calls f(p, mask) over [first, last] of a row of `cols` >= 16 pixels, 16 at a time: p is where 16 bytes
+// can be read inside the row (the last block is moved back to end at the row's end, so the laser rows a
+// and b, which have no padding, are never read past), mask the lanes in [first, last] not yet visited.
+template <typename F>
+inline void ForRange(int first, int last, int cols, F&& f) {
+  for (int s = first; s <= last; s += 16) {
+    const int p = std::min(s, cols - 16);
+    f(p, LaneRange(s - p, std::min(last, s + 15) - p));
+  }
+}
+
+// The largest byte of a vector.
+inline int MaxByte(__m128i v) {
+  v = _mm_max_epu8(v, _mm_srli_si128(v, 8));
+  v = _mm_max_epu8(v, _mm_srli_si128(v, 4));
+  v = _mm_max_epu8(v, _mm_srli_si128(v, 2));
+  v = _mm_max_epu8(v, _mm_srli_si128(v, 1));
+  return _mm_cvtsi128_si32(v) & 0xff;
+}
+
+// FillPlateau (kernels_scalar.simd.hpp), 16 pixels at a time.
+inline PeakInRun FillPlateau(const uint8_t* a, const uint8_t* b, uint8_t* d, int first, int last, int cols,
+                             int threshold) {
+  if (cols < 16) return scalar::FillPlateau(a, b, d, first, last, cols, threshold);
+  const __m128i all = _mm_set1_epi8(-1);
+  __m128i plateau = _mm_setzero_si128();  // 255 - b = ~b over the saturated lanes
+  ForRange(first, last, cols, [&](int p, __m128i mask) {
+    const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + p));
+    const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p));
+    const __m128i saturated = _mm_and_si128(mask, _mm_cmpeq_epi8(va, all));
+    plateau = _mm_max_epu8(plateau, _mm_andnot_si128(vb, saturated));
+  });
+  const __m128i level = _mm_set1_epi8(static_cast<char>(MaxByte(plateau)));
+  const __m128i headroom = _mm_set1_epi8(static_cast<char>(255 - threshold));
+  ForRange(first, last, cols, [&](int p, __m128i mask) {
+    const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + p));
+    const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p));
+    const __m128i fill = _mm_and_si128(_mm_and_si128(mask, _mm_cmpeq_epi8(va, all)),
+                                       _mm_cmpeq_epi8(_mm_max_epu8(vb, headroom), headroom));
+    __m128i* at = reinterpret_cast<__m128i*>(d + p);
+    _mm_storeu_si128(at, _mm_or_si128(_mm_andnot_si128(fill, _mm_loadu_si128(at)), _mm_and_si128(fill, level)));
+  });
+  return FindPeak(d, first, last);
+}
+
+// ScanNotch (kernels_scalar.simd.hpp), 16 pixels at a time.
+inline NotchScan ScanNotch(const uint8_t* a, const uint8_t* b, int first, int last, int cols) {
+  if (cols < 16) return scalar::ScanNotch(a, b, first, last, cols);
+  const __m128i all = _mm_set1_epi8(-1);
+  __m128i best = _mm_setzero_si128(), worst = all;
+  ForRange(first, last, cols, [&](int p, __m128i mask) {
+    const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + p));
+    const __m128i x = _mm_subs_epu8(va, _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p)));
+    best = _mm_max_epu8(best, _mm_and_si128(mask, x));
+    const __m128i saturated = _mm_and_si128(mask, _mm_cmpeq_epi8(va, all));
+    worst = _mm_min_epu8(worst, _mm_or_si128(x, _mm_andnot_si128(saturated, all)));
+  });
+  NotchScan scan;
+  scan.best_difference = MaxByte(best);
+  scan.worst_saturated = 255 - MaxByte(_mm_xor_si128(worst, all));  // min(x) = 255 - max(255 - x)
+  return scan;
+}
+
+// SumRange (kernels_scalar.simd.hpp), 16 pixels at a time.
+inline int SumRange(const uint8_t* b, int first, int last, int cols) {
+  if (cols < 16) return scalar::SumRange(b, first, last, cols);
+  __m128i sum = _mm_setzero_si128();
+  ForRange(first, last, cols, [&](int p, __m128i mask) {
+    const __m128i vb = _mm_and_si128(mask, _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p)));
+    sum = _mm_add_epi64(sum, _mm_sad_epu8(vb, _mm_setzero_si128()));
+  });
+  return _mm_cvtsi128_si32(sum) + _mm_cvtsi128_si32(_mm_srli_si128(sum, 8));
+}
+
+// SumsAround (kernels_scalar.simd.hpp), 16 pixels at a time, both sums from one pass where middle lies
+// in [first, last].
+inline SidesSum SumsAround(const uint8_t* b, int first, int middle, int last, int cols) {
+  if (cols < 16 || middle < first || middle > last) return scalar::SumsAround(b, first, middle, last, cols);
+  __m128i left = _mm_setzero_si128(), right = _mm_setzero_si128();
+  ForRange(first, last, cols, [&](int p, __m128i mask) {
+    const __m128i vb = _mm_and_si128(mask, _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p)));
+    left = _mm_add_epi64(left, _mm_sad_epu8(_mm_and_si128(vb, LaneRange(-1, middle - 1 - p)), _mm_setzero_si128()));
+    right = _mm_add_epi64(right, _mm_sad_epu8(_mm_and_si128(vb, LaneRange(middle + 1 - p, 16)), _mm_setzero_si128()));
+  });
+  SidesSum sums;
+  sums.left = _mm_cvtsi128_si32(left) + _mm_cvtsi128_si32(_mm_srli_si128(left, 8));
+  sums.right = _mm_cvtsi128_si32(right) + _mm_cvtsi128_si32(_mm_srli_si128(right, 8));
+  return sums;
 }
 
 // Step 1 of the row pass (row_pass.cc) from pixel *next on, 16 pixels per instruction: whole 64-pixel

@@ -68,7 +68,7 @@ double EstimateCentre(Estimator estimator, const uint8_t* d, int size, int first
 namespace detail {
 
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
-                  const ExtractOptions& o, const FrameScale& frame, uint8_t flags, LinePoint* point, double* column_out) {
+                  const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column_out) {
   double column;
   if (o.estimator == Estimator::kCenterOfMass) {  // EstimateCentre's, with the vector extent scans
     column = CenterOfMassOver(d, c.com_first, c.com_last, c.peak);
@@ -79,54 +79,62 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   if (a[c.peak_pos] == 255) {
     flags |= kFlagSaturated;
     // A notch: a saturated pixel of the line whose own difference is below half the line's best.
-    int best_difference = 0, worst_saturated = 255;
-    for (int i = c.first; i <= c.last; ++i) {
-      const int x = a[i] > b[i] ? a[i] - b[i] : 0;
-      best_difference = std::max(best_difference, x);
-      if (a[i] == 255) worst_saturated = std::min(worst_saturated, x);
-    }
-    if (2 * worst_saturated < best_difference) flags |= kFlagNotched;
+    const NotchScan scan = ScanNotch(a, b, c.first, c.last, cols);
+    if (2 * scan.worst_saturated < scan.best_difference) flags |= kFlagNotched;
   }
   if (c.first == 0 || c.last == cols - 1) flags |= kFlagClipped;
-  const double width = c.Width();
-  // Uncertainty (see the design notes): noise, speckle and the profile's asymmetry.
-  const double asymmetry = column - 0.5 * (c.first + c.last);
-  const double noise_term = frame.noise_dn / c.peak * std::sqrt(width * (1.0 / 12.0));
-  // Texture across the line: the laser's reflection is weighed by the albedo, which the laser-off frame
-  // shows; an albedo that differs between the line's two halves pulls the centre towards the brighter
-  // one, by up to a quarter of the width for a step across the middle.
-  double texture_term = 0.0;
-  {
-    const int middle = static_cast<int>(column + 0.5);
-    int left = 0, right = 0;
-    for (int i = c.com_first; i < middle; ++i) left += b[i];
-    for (int i = middle + 1; i <= c.com_last; ++i) right += b[i];
-    const int nl = std::max(1, middle - c.com_first), nr = std::max(1, c.com_last - middle);
-    const double ml = static_cast<double>(left) / nl, mr = static_cast<double>(right) / nr;
-    texture_term = 0.25 * width * std::abs(ml - mr) / std::max(1.0, ml + mr);
-  }
-  const double uncertainty = 2.0 * std::sqrt(noise_term * noise_term + kSpeckleTerm2 * width +
-                                             asymmetry * asymmetry + texture_term * texture_term);
-  double quality = 1.0;
-  if (frame.noise_dn > 0) quality *= std::min(1.0, c.peak * frame.quality_per_snr);
-  quality *= std::min(1.0, (c.peak - 0.5 * frame.threshold) * frame.quality_per_contrast);
-  if (width < frame.narrow_width || width > frame.wide_width) quality *= 0.6;
-  if (flags & kFlagMultiplePeaks) quality *= 0.5;
-  if (flags & kFlagClipped) quality *= 0.3;
-  if (flags & kFlagStrongerRejected) quality *= 0.5;
-  quality /= 1.0 + uncertainty * uncertainty;
-  LinePoint p;
-  p.row = row;
-  p.column = static_cast<float>(column);
-  p.peak = static_cast<float>(c.peak);
-  p.width = static_cast<float>(width);
-  p.quality = static_cast<float>(std::clamp(quality, 0.0, 1.0));
-  p.uncertainty_px = static_cast<float>(uncertainty);
-  if (std::abs(asymmetry) > 0.25 * width) flags |= kFlagLopsided;
-  p.flags = flags;
-  *point = p;
+  terms->column = column;
+  terms->extent_middle = 0.5 * (c.first + c.last);
+  terms->width_num = c.width_num;
+  terms->width_den = c.width_den;
+  terms->peak = c.peak;
+  // Texture across the line (ScorePoints): the laser-off row either side of the centre's pixel.
+  const int middle = static_cast<int>(column + 0.5);
+  const SidesSum sides = SumsAround(b, c.com_first, middle, c.com_last, cols);
+  terms->left = sides.left;
+  terms->right = sides.right;
+  terms->left_n = std::max(1, middle - c.com_first);
+  terms->right_n = std::max(1, c.com_last - middle);
+  // Field by field: a LinePoint built on the stack and copied whole was read back before its flag byte's
+  // store had landed (a store-forwarding stall per row, laser_bench).
+  point->row = row;
+  point->column = static_cast<float>(column);
+  point->peak = static_cast<float>(c.peak);
+  point->flags = flags;
   *column_out = column;
   return true;
+}
+
+void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points) {
+  const size_t n = points->size();
+  LinePoint* p = points->data();
+  for (size_t i = 0; i < n; ++i) {
+    const PointTerms& t = terms[i];
+    const double width = t.width_num / t.width_den;
+    // Uncertainty (see the design notes): noise, speckle and the profile's asymmetry.
+    const double asymmetry = t.column - t.extent_middle;
+    const double noise_term = frame.noise_dn / t.peak * std::sqrt(width * (1.0 / 12.0));
+    // Texture across the line: the laser's reflection is weighed by the albedo, which the laser-off frame
+    // shows; an albedo that differs between the line's two halves pulls the centre towards the brighter
+    // one, by up to a quarter of the width for a step across the middle.
+    const double ml = t.left / t.left_n, mr = t.right / t.right_n;
+    const double texture_term = 0.25 * width * std::abs(ml - mr) / std::max(1.0, ml + mr);
+    const double uncertainty = 2.0 * std::sqrt(noise_term * noise_term + kSpeckleTerm2 * width +
+                                               asymmetry * asymmetry + texture_term * texture_term);
+    const uint8_t flags = p[i].flags;
+    double quality = 1.0;
+    if (frame.noise_dn > 0) quality *= std::min(1.0, t.peak * frame.quality_per_snr);
+    quality *= std::min(1.0, (t.peak - 0.5 * frame.threshold) * frame.quality_per_contrast);
+    if (width < frame.narrow_width || width > frame.wide_width) quality *= 0.6;
+    if (flags & kFlagMultiplePeaks) quality *= 0.5;
+    if (flags & kFlagClipped) quality *= 0.3;
+    if (flags & kFlagStrongerRejected) quality *= 0.5;
+    quality /= 1.0 + uncertainty * uncertainty;
+    p[i].width = static_cast<float>(width);
+    p[i].quality = static_cast<float>(std::clamp(quality, 0.0, 1.0));
+    p[i].uncertainty_px = static_cast<float>(uncertainty);
+    if (std::abs(asymmetry) > 0.25 * width) p[i].flags = flags | kFlagLopsided;
+  }
 }
 
 void GrowUncertaintyWithSlope(std::vector<LinePoint>* line_points) {
