@@ -14,13 +14,11 @@ int FindCandidates(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, int
   auto add_run = [&](int run_first, int run_last) __attribute__((always_inline)) {
     if (count >= capacity) return;
     Candidate& c = candidates[count];
-    PeakInRun found = FindPeak(d, run_first, run_last);
-    if (found.value == 255) {
-      // Saturated laser-on pixels were set to 255 by step 1 (a notch cannot split the line); their
-      // difference is clipped, so they all take the run's highest true difference among them, the
-      // plateau a saturated line has (DESIGN.md), and the candidate is measured on that.
-      found = FillPlateau(a, b, d, run_first, run_last, cols, threshold);
-    }
+    // Saturated laser-on pixels over an off pixel with headroom were set to 255 by step 1 (a notch cannot
+    // split the line); their difference is clipped, so they all take the run's highest true difference
+    // among them, the plateau a saturated line has (DESIGN.md), and the candidate is measured on that.
+    // (Only those pixels can hold 255, so this is the same as filling where the run's peak is 255.)
+    const PeakInRun found = FillPlateau(a, b, d, run_first, run_last, cols, threshold);
     c.peak_pos = found.position;
     c.peak = found.value;
     // The half-maximum extent: d >= peak / 2, i.e. d >= ceil(peak / 2) for integers.

@@ -387,7 +387,6 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     previous_row = r;
   }
   detail::ScorePoints(terms.data(), frame, &line->points);
-  detail::GrowUncertaintyWithSlope(&line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;
     const size_t n = points.size();

@@ -5,8 +5,8 @@
 //   RowPass          row_pass.cc    steps 1-2: the row's difference and its groups of pixels >= threshold
 //   FindCandidates   candidates.cc  step 3: the runs of such pixels, measured (peak, extents, width)
 //   ChooseCandidate  candidates.cc  step 4: plausibility, and the one candidate the row keeps
-//   MeasurePoint     point.cc       step 5: sub-pixel centre, flags, uncertainty and quality
-//   GrowUncertaintyWithSlope  point.cc   a steep line's points are less certain
+//   MeasurePoint     point.cc       step 5 in the row: sub-pixel centre and flags
+//   ScorePoints      point.cc       step 5 after the rows: width, uncertainty (a steep line's larger), quality
 //   SmoothAlongLine  smooth.cc      (public) the along-line smoothing
 //   LimitSmoothing   smooth.cc      the smoothing moves no point further than its uncertainty
 //
@@ -124,13 +124,10 @@ struct PointTerms {
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
                   const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column);
 
-// Step 5, after the row loop: each point's width, uncertainty and quality from its terms; sets
-// kFlagLopsided (cleared at the end).
+// Step 5, after the row loop: each point's width, uncertainty and quality from its terms, both scaled by
+// the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
+// (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
-
-// A steep line (the line runs along the rows) has a poorly defined centre per row: uncertainty and
-// quality scaled by the slope from the neighbouring rows' centres.
-void GrowUncertaintyWithSlope(std::vector<LinePoint>* points);
 
 // After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
 // not at all where the profile changes (saturation begins or ends, or kFlagLopsided).

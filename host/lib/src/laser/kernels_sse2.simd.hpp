@@ -146,12 +146,15 @@ inline PeakInRun FillPlateau(const uint8_t* a, const uint8_t* b, uint8_t* d, int
   if (cols < 16) return scalar::FillPlateau(a, b, d, first, last, cols, threshold);
   const __m128i all = _mm_set1_epi8(-1);
   __m128i plateau = _mm_setzero_si128();  // 255 - b = ~b over the saturated lanes
+  __m128i any = _mm_setzero_si128();
   ForRange(first, last, cols, [&](int p, __m128i mask) {
     const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + p));
     const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p));
     const __m128i saturated = _mm_and_si128(mask, _mm_cmpeq_epi8(va, all));
     plateau = _mm_max_epu8(plateau, _mm_andnot_si128(vb, saturated));
+    any = _mm_or_si128(any, saturated);
   });
+  if (_mm_movemask_epi8(any) == 0) return FindPeak(d, first, last);  // nothing saturated: nothing to fill
   const __m128i level = _mm_set1_epi8(static_cast<char>(MaxByte(plateau)));
   const __m128i headroom = _mm_set1_epi8(static_cast<char>(255 - threshold));
   ForRange(first, last, cols, [&](int p, __m128i mask) {

@@ -108,6 +108,7 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points) {
   const size_t n = points->size();
   LinePoint* p = points->data();
+  float before = 0.0f;  // the previous point's column (the slope's, below)
   for (size_t i = 0; i < n; ++i) {
     const PointTerms& t = terms[i];
     const double width = t.width_num / t.width_den;
@@ -130,37 +131,26 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
     if (flags & kFlagClipped) quality *= 0.3;
     if (flags & kFlagStrongerRejected) quality *= 0.5;
     quality /= 1.0 + uncertainty * uncertainty;
-    p[i].width = static_cast<float>(width);
-    p[i].quality = static_cast<float>(std::clamp(quality, 0.0, 1.0));
-    p[i].uncertainty_px = static_cast<float>(uncertainty);
-    if (std::abs(asymmetry) > 0.25 * width) p[i].flags = flags | kFlagLopsided;
-  }
-}
-
-void GrowUncertaintyWithSlope(std::vector<LinePoint>* line_points) {
-  // A steep line (a surface seen at a grazing angle: the line runs along the rows) has a poorly defined
-  // centre per row: an error of the profile along the row is the slope times one across it. The
-  // uncertainty grows by sqrt(1 + slope^2), the slope from the neighbouring rows' centres.
-  std::vector<LinePoint>& points = *line_points;
-  const size_t n = points.size();
-  float before = 0.0f;
-  for (size_t i = 0; i < n; ++i) {
-    const LinePoint& p = points[i];
-    const bool up = i > 0 && points[i - 1].row + 1 == p.row;
-    const bool down = i + 1 < n && points[i + 1].row == p.row + 1;
-    const float here = p.column;
+    // A steep line (a surface seen at a grazing angle: the line runs along the rows) has a poorly defined
+    // centre per row: an error of the profile along the row is the slope times one across it. The
+    // uncertainty grows by sqrt(1 + slope^2), the slope from the neighbouring rows' centres.
+    const bool up = i > 0 && p[i - 1].row + 1 == p[i].row;
+    const bool down = i + 1 < n && p[i + 1].row == p[i].row + 1;
+    const float here = p[i].column;
     float slope = 0.0f;
     if (up && down) {
-      slope = 0.5f * (points[i + 1].column - before);
+      slope = 0.5f * (p[i + 1].column - before);
     } else if (up) {
       slope = here - before;
     } else if (down) {
-      slope = points[i + 1].column - here;
+      slope = p[i + 1].column - here;
     }
     before = here;
     const float grow = 1.0f + slope * slope;
-    points[i].uncertainty_px *= std::sqrt(grow);
-    points[i].quality /= grow;
+    p[i].width = static_cast<float>(width);
+    p[i].quality = static_cast<float>(std::clamp(quality, 0.0, 1.0)) / grow;
+    p[i].uncertainty_px = static_cast<float>(uncertainty) * std::sqrt(grow);
+    if (std::abs(asymmetry) > 0.25 * width) p[i].flags = flags | kFlagLopsided;
   }
 }
 
