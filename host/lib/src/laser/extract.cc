@@ -33,8 +33,10 @@
 // which for the speckle of our presets and of real webcams (C ~ 0.3, g ~ 1-3 px) is ~0.08 sqrt(W)
 // (kSpeckleTerm2); and a lopsided profile (texture across the line, a glint's lobe, an edge) shows as the
 // distance between the centre of mass and the middle of the half-maximum extent, which enters whole.
-// u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2). The quality is divided by 1 + u^2, so that the points
-// of lowest quality are those with the largest expected errors (RenderedLineTest.WebcamQuality...). The
+// u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2), computed for all of a frame's points after the row loop
+// (ScorePoints: its divisions and roots then overlap instead of stalling each row). The quality is
+// divided by 1 + u^2, so that the points of lowest quality are those with the largest expected errors
+// (RenderedLineTest.WebcamQuality...). The
 // along-line smoothing moves a point by at most u, and not at all where saturation begins or ends
 // between neighbouring rows or where the profile is lopsided (its asymmetry over a quarter of W): there
 // the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
