@@ -157,15 +157,43 @@ inline PeakInRun FillPlateau(const uint8_t* a, const uint8_t* b, uint8_t* d, int
   if (_mm_movemask_epi8(any) == 0) return FindPeak(d, first, last);  // nothing saturated: nothing to fill
   const __m128i level = _mm_set1_epi8(static_cast<char>(MaxByte(plateau)));
   const __m128i headroom = _mm_set1_epi8(static_cast<char>(255 - threshold));
+  // The peak from the filled vectors themselves while the run has at most kKept blocks: reading the row
+  // back right after these stores, at other offsets, would wait for each store to land (no forwarding).
+  constexpr int kKept = 4;
+  __m128i kept[kKept];
+  int kept_at[kKept];
+  unsigned kept_lanes[kKept];
+  int blocks = 0;
+  __m128i best = _mm_setzero_si128();
   ForRange(first, last, cols, [&](int p, __m128i mask) {
     const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + p));
     const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p));
     const __m128i fill = _mm_and_si128(_mm_and_si128(mask, _mm_cmpeq_epi8(va, all)),
                                        _mm_cmpeq_epi8(_mm_max_epu8(vb, headroom), headroom));
     __m128i* at = reinterpret_cast<__m128i*>(d + p);
-    _mm_storeu_si128(at, _mm_or_si128(_mm_andnot_si128(fill, _mm_loadu_si128(at)), _mm_and_si128(fill, level)));
+    const __m128i filled = _mm_or_si128(_mm_andnot_si128(fill, _mm_loadu_si128(at)), _mm_and_si128(fill, level));
+    _mm_storeu_si128(at, filled);
+    const __m128i in_run = _mm_and_si128(mask, filled);  // the lanes not yet seen, in increasing order
+    best = _mm_max_epu8(best, in_run);
+    if (blocks < kKept) {
+      kept[blocks] = in_run;
+      kept_at[blocks] = p;
+      kept_lanes[blocks] = static_cast<unsigned>(_mm_movemask_epi8(mask));
+    }
+    ++blocks;
   });
-  return FindPeak(d, first, last);
+  if (blocks > kKept) return FindPeak(d, first, last);
+  PeakInRun peak;
+  peak.value = MaxByte(best);
+  const __m128i target = _mm_set1_epi8(static_cast<char>(peak.value));
+  for (int k = 0; k < blocks; ++k) {  // the first lane at the peak, blocks in increasing order
+    const unsigned hits = kept_lanes[k] & static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(kept[k], target)));
+    if (hits != 0) {
+      peak.position = kept_at[k] + __builtin_ctz(hits);
+      break;
+    }
+  }
+  return peak;
 }
 
 // ScanNotch (kernels_scalar.simd.hpp), 16 pixels at a time.
