@@ -99,9 +99,10 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
     std::vector<PointError> points = WebcamPointErrors(file, 3, &total);
     ASSERT_GT(points.size(), 1000u) << file;
     const double lit = static_cast<double>(total.truth_rows);
-    std::printf("%s: lit rows %zu, found %.2f %%, > 1 px off %.3f %%, rms (within 1 px) %.3f px\n", file,
-                total.truth_rows, 100.0 * (lit - total.missed) / lit, 100.0 * total.outliers / lit,
-                total.rms_px());
+    std::printf("%s: lit rows %zu, found %.2f %%, > 1 px off %.3f %%, rms (within 1 px) %.3f px; across the "
+                "line: > 1 px off %.3f %%, rms %.3f px\n",
+                file, total.truth_rows, 100.0 * (lit - total.missed) / lit, 100.0 * total.outliers / lit,
+                total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px());
     std::sort(points.begin(), points.end(), [](const PointError& a, const PointError& b) { return a.quality < b.quality; });
     const size_t tenth = points.size() / 10;
     double rms[10];

@@ -31,6 +31,34 @@ TEST(AccuracyTest, CompareWithTruthCountsMatchesOutliersAndMisses) {
   EXPECT_NEAR(a.rms_px(), std::sqrt((0.01 + 0.04) / 2), 1e-6);
 }
 
+// A steep true line (10 px per row): a point 5 px along its row from the truth lies 5 / sqrt(101) px from
+// the line, and one on the line between two rows' crossings lies on it; across the line neither is an
+// outlier, along the row the first is.
+TEST(AccuracyTest, CompareWithTruthMeasuresAcrossASteepLine) {
+  std::vector<bundle::LinePoint> truth;
+  for (int row = 0; row < 10; ++row) {
+    truth.emplace_back();
+    truth.back().row = row;
+    truth.back().column = 100.0 + 10.0 * row;
+  }
+  laser::Line line;
+  line.points = {{4, 145.0f, 100, 5, 1, 0}, {6, 160.0f, 100, 5, 1, 0}};
+  const LineAccuracy a = CompareWithTruth(line, truth, 2.0);
+  EXPECT_EQ(a.outliers, 1u);  // the 5 px row error
+  EXPECT_EQ(a.matched, 1u);
+  EXPECT_EQ(a.across_outliers, 0u);
+  ASSERT_EQ(a.across_matched, 2u);
+  EXPECT_NEAR(a.across_rms_px(), std::sqrt((25.0 / 101.0 + 0.0) / 2), 1e-9);
+  // Two lines far apart are not joined: a point between them is far from both.
+  truth.emplace_back();
+  truth.back().row = 20, truth.back().column = 100.0;
+  truth.emplace_back();
+  truth.back().row = 21, truth.back().column = 400.0;
+  line.points = {{20, 250.0f, 100, 5, 1, 0}};
+  const LineAccuracy b = CompareWithTruth(line, truth, 2.0);
+  EXPECT_EQ(b.across_outliers, 1u);
+}
+
 // The virtual scanner (sim module) renders a plane 300 mm away; a 320x240 crop of the default camera
 // (same pixel footprint: 5 degrees instead of 20) keeps the test fast.
 constexpr const char* kSmallCamera = "\"camera\": {\"width\": 320, \"height\": 240, \"hfov_deg\": 4.97}";

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 
 #include <Eigen/SVD>
@@ -22,7 +23,42 @@ void LineAccuracy::Add(const LineAccuracy& o) {
   sum_error += o.sum_error;
   sum_squared += o.sum_squared;
   max_abs = std::max(max_abs, o.max_abs);
+  across_outliers += o.across_outliers;
+  across_matched += o.across_matched;
+  across_sum_squared += o.across_sum_squared;
 }
+
+namespace {
+
+// The distance from (column, row) to the true line: the polyline through each true crossing and the
+// nearest crossing of the next row (a pair further apart than kMaxStepPx is not one line), over the rows
+// within kRowsAround; also to the crossings themselves (a line's end).
+double DistanceAcrossLine(double column, int row, const std::map<int, std::vector<double>>& by_row) {
+  constexpr int kRowsAround = 4;
+  constexpr double kMaxStepPx = 64.0;
+  double best = std::numeric_limits<double>::infinity();
+  for (auto it = by_row.lower_bound(row - kRowsAround); it != by_row.end() && it->first <= row + kRowsAround; ++it) {
+    const double y0 = it->first - row;
+    const auto next = by_row.find(it->first + 1);
+    for (const double c0 : it->second) {
+      const double x0 = c0 - column;
+      best = std::min(best, std::hypot(x0, y0));
+      if (next == by_row.end()) continue;
+      const double* c1 = nullptr;
+      for (const double& c : next->second) {
+        if (c1 == nullptr || std::abs(c - c0) < std::abs(*c1 - c0)) c1 = &c;
+      }
+      if (std::abs(*c1 - c0) > kMaxStepPx) continue;
+      // The segment (x0, y0) -> (x1, y0 + 1), the point at the origin.
+      const double dx = *c1 - c0, dy = 1.0;
+      const double t = std::clamp(-(x0 * dx + y0 * dy) / (dx * dx + dy * dy), 0.0, 1.0);
+      best = std::min(best, std::hypot(x0 + t * dx, y0 + t * dy));
+    }
+  }
+  return best;
+}
+
+}  // namespace
 
 LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
                               double outlier_px) {
@@ -40,6 +76,13 @@ LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle:
       continue;
     }
     ++found_rows;
+    const double across = DistanceAcrossLine(p.column, p.row, by_row);
+    if (across > outlier_px) {
+      ++a.across_outliers;
+    } else {
+      ++a.across_matched;
+      a.across_sum_squared += across * across;
+    }
     double best = 1e300;
     for (double c : it->second) {
       if (std::abs(p.column - c) < std::abs(best)) best = p.column - c;

@@ -4,6 +4,12 @@
 // An extracted point is matched to the nearest true crossing of its row; within `outlier_px` it counts
 // toward the error statistics, further away it is an outlier (a reflection, a wrong peak). True rows with
 // no extracted point are missed (too dark, rejected); extracted rows without truth are spurious.
+//
+// Measured along the row, the error of a steep line (one that runs along the rows: a surface seen at a
+// grazing angle) is its error across the line times the slope, and a point that lies on the true line at
+// another height is no error in 3D (it triangulates onto the true surface). So each point is also
+// measured across the line: its distance to the true line, the polyline through the truth of nearby rows
+// (the across_* figures).
 #pragma once
 
 #include <cmath>
@@ -30,8 +36,13 @@ struct LineAccuracy {
   size_t spurious = 0;  // extracted where the truth has nothing
   size_t missed = 0;    // truth rows without an extracted point
   double sum_error = 0, sum_squared = 0, max_abs = 0;  // over matched points, px
+  // Across the line (see above), over the extracted points with truth in their row: further than
+  // outlier_px from the true line, or within it (and their squared distances, px^2).
+  size_t across_outliers = 0, across_matched = 0;
+  double across_sum_squared = 0;
 
   double rms_px() const { return matched > 0 ? std::sqrt(sum_squared / matched) : 0.0; }
+  double across_rms_px() const { return across_matched > 0 ? std::sqrt(across_sum_squared / across_matched) : 0.0; }
   double mean_px() const { return matched > 0 ? sum_error / matched : 0.0; }
   void Add(const LineAccuracy& other);
 };

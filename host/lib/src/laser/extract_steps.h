@@ -1,0 +1,136 @@
+// The named steps of the line extraction (the design notes at the top of extract.cc say what each does
+// and why): private to the laser module.
+//
+//   EstimateNoise    noise.cc       the difference's noise from a sparse sample, for the threshold
+//   RowPass          row_pass.cc    steps 1-2: the row's difference and its groups of pixels >= threshold
+//   FindCandidates   candidates.cc  step 3: the runs of such pixels, measured (peak, extents, width)
+//   ChooseCandidate  candidates.cc  step 4: plausibility, and the one candidate the row keeps
+//   MeasurePoint     point.cc       step 5 in the row: sub-pixel centre and flags
+//   ScorePoints      point.cc       step 5 after the rows: width, uncertainty (a steep line's larger), quality
+//   SmoothAlongLine  smooth.cc      (public) the along-line smoothing
+//   LimitSmoothing   smooth.cc      the smoothing moves no point further than its uncertainty
+//
+// The kernels these use, once per instruction set, are in kernels.h.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+#include "rotoscan/laser/extract.h"
+
+namespace rotoscan::laser::detail {
+
+// The centre of mass weighs d - 0.15 * peak over the run above that level. Measured on the
+// synthetic cases of EstimatorComparison with levels 0.5, 0.35, 0.25, 0.2, 0.15 and 0.1: below 0.25 the
+// wide weak line gains (more pixels average the noise, 0.092 -> 0.073 px) and nothing loses; 0.15 keeps a
+// margin of 6 sigma over a 60 DN line's noise floor.
+// The level 0.15 as the exact fraction kComLevelNum / kComScale.
+constexpr int kComScale = 20;
+constexpr int kComLevelNum = 3;
+
+// Runs whose half-maximum extents are at most this far apart are one candidate (step 3).
+constexpr int kMergeGapPx = 2;
+// The speckle's share of a point's variance per pixel of line width, px^2 (Uncertainty, design notes).
+constexpr double kSpeckleTerm2 = 0.08 * 0.08;
+// Internal flag of a point whose profile is lopsided (its centre of mass more than a quarter of its
+// width from the middle of its half-maximum extent): cleared before the points are returned.
+constexpr uint8_t kFlagLopsided = 0x80;
+// Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
+constexpr int kPad = 16;
+
+// The highest value of a run and the first pixel holding it (FindPeak, kernels.h).
+struct PeakInRun {
+  int value = 0;
+  int position = 0;
+};
+
+// ScanNotch's result (kernels.h): the highest difference over a run, and the lowest among its saturated
+// laser-on pixels (255 when there is none).
+struct NotchScan {
+  int best_difference = 0;
+  int worst_saturated = 255;
+};
+
+// SumsAround's result (kernels.h): sums of a row either side of a pixel.
+struct SidesSum {
+  int left = 0, right = 0;
+};
+
+struct Candidate {
+  int peak_pos = 0;  // first pixel at the peak value
+  int peak = 0;
+  int first = 0;  // half-maximum extent, inclusive
+  int last = 0;
+  // The width at half maximum as the fraction width_num / width_den (width_den > 0): the candidates are
+  // judged by it without a division (a division per candidate on the way to every row's decision was the
+  // row's slowest step); only the winner's width is divided out.
+  int width_num = 0, width_den = 1;
+  int com_first = 0, com_last = 0;  // the centre of mass's run (kCenterOfMass only)
+  bool off_saturated = false;
+  bool WidthWithin(double min_width, double max_width) const {
+    return width_num >= min_width * width_den && width_num <= max_width * width_den;
+  }
+  double Width() const { return static_cast<double>(width_num) / width_den; }
+};
+
+// Robust noise sigma of (on - off) on channel `channel` of the frames, from a sparse sample.
+double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel);
+
+// Steps 1-2 on one row: d[i] (i < cols; d padded with kPad zero bytes each side) = the difference of the
+// laser-on row a and the laser-off row b, and the (start, bit mask) pairs of the row's pixel groups that
+// hold a pixel >= threshold, in starts/masks (room for cols / 16 + 3). Returns the number of groups; 0:
+// no laser in this row. `avx2`: the AVX2 kernel may run (kernels.h).
+int RowPass(const uint8_t* a, const uint8_t* b, int cols, int threshold, bool avx2, uint8_t* d, int* starts,
+            uint64_t* masks);
+
+// Step 3: the candidates of a row from RowPass's groups, at most `capacity` of them; returns how many.
+// Fills notches in d (saturated laser-on pixels take the run's plateau). `centre_of_mass`: also measure
+// each candidate's centre-of-mass run.
+int FindCandidates(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, int threshold, int off_saturation_dn,
+                   bool centre_of_mass, const int* starts, const uint64_t* masks, int block_count,
+                   Candidate* candidates, int capacity);
+
+// Step 4: the index of the candidate the row keeps, or -1 (the reason counted in *stats). Sets the row's
+// kFlagMultiplePeaks / kFlagStrongerRejected in *flags. `continuous`: the previous row with a point is
+// at most 2 rows back, its centre at previous_column.
+int ChooseCandidate(const Candidate* candidates, int count, const ExtractOptions& o, double previous_column,
+                    bool continuous, LineStats* stats, uint8_t* flags);
+
+// What step 5 needs of the frame.
+struct FrameScale {
+  double noise_dn = 0;
+  int threshold = 0;
+  double quality_per_snr = 0, quality_per_contrast = 0;
+  double narrow_width = 0, wide_width = 0;  // the quality falls outside these widths
+};
+
+// What step 5 measures in the row (MeasurePoint) for the uncertainty and quality, which ScorePoints
+// computes after the row loop for all points at once: their divisions and square roots, one chain per
+// point, then overlap instead of each waiting within its row (laser_bench: 10-15 % of a frame).
+struct PointTerms {
+  double column;            // the centre, px
+  double extent_middle;     // the middle of the half-maximum extent, px
+  double width_num, width_den;  // the width at half maximum, their ratio
+  double peak;              // DN
+  double left, right;       // sums of the laser-off row over the centre of mass's run either side of
+  double left_n, right_n;   // the centre's pixel, and their pixel counts (at least 1)
+};
+
+// Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
+// of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test
+// reads it); false when the estimator fails (counted as bad width by the caller). `flags` are step 4's.
+bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
+                  const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column);
+
+// Step 5, after the row loop: each point's width, uncertainty and quality from its terms, both scaled by
+// the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
+// (cleared at the end).
+void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
+
+// After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
+// not at all where the profile changes (saturation begins or ends, or kFlagLopsided).
+void LimitSmoothing(const std::vector<float>& own, std::vector<LinePoint>* points);
+
+}  // namespace rotoscan::laser::detail

@@ -1,0 +1,92 @@
+// The extractor's instruction-set paths, OpenCV style: each kernel once per instruction set, in its own
+// file, with a dispatcher that picks one.
+//  * kernels_scalar.simd.hpp  portable C++: the whole path where the compiler does not target SSE2, and
+//                             the tails (a row narrower than a vector) everywhere;
+//  * kernels_sse2.simd.hpp    the x86-64 baseline, inlined into the row loop (the candidates' extent, peak
+//                             and centre scans run per candidate, so a call each would cost);
+//  * kernels_ssse3.cc         dispatched at run time: a color row's channel by byte shuffles;
+//  * kernels_avx2.cc          dispatched at run time: the row pass, the smoothing's fits and screens.
+// Which run-time paths are used: HaveSsse3(), HaveAvx2() (dispatch.cc), which the tests can turn off
+// (internal::AllowVectorExtensions) to run each path; every path gives the same result bit for bit.
+#pragma once
+
+#include <cstdint>
+
+#include "extract_steps.h"
+
+#if defined(__x86_64__) || defined(__i386__)
+#define ROTOSCAN_HAVE_SSSE3_PATH 1
+#endif
+
+#include "kernels_scalar.simd.hpp"
+#if defined(__SSE2__)
+#include "kernels_sse2.simd.hpp"
+#endif
+
+namespace rotoscan::laser::detail {
+
+// The baseline kernels (see each one's portable definition in kernels_scalar.simd.hpp).
+#if defined(__SSE2__)
+using sse2::CenterOfMassOver;
+using sse2::ExtentLeft;
+using sse2::ExtentRight;
+using sse2::FillPlateau;
+using sse2::FindPeak;
+using sse2::OutlierBits;
+using sse2::ScanNotch;
+using sse2::ScreenWindows;
+using sse2::SumRange;
+using sse2::SumsAround;
+#else
+using scalar::CenterOfMassOver;
+using scalar::ExtentLeft;
+using scalar::ExtentRight;
+using scalar::FillPlateau;
+using scalar::FindPeak;
+using scalar::OutlierBits;
+using scalar::ScanNotch;
+using scalar::ScreenWindows;
+using scalar::SumRange;
+using scalar::SumsAround;
+#endif
+
+// OutlierBits of every point k in [k0, k1) of a stretch that the screen flagged (bit k - k0 of
+// `flagged`), with the point's first fit a[k] + x b[k], into outliers[k]. `raw` from the stretch start.
+inline void FlaggedOutliers(const float* raw, const double* a, const double* b, int k0, int k1, int h,
+                            double outlier_px, const uint64_t* flagged, const double* window_x, uint64_t* outliers) {
+  for (int w = 0; w <= (k1 - k0 - 1) / 64; ++w) {
+    for (uint64_t f = flagged[w]; f != 0; f &= f - 1) {
+      const int k = k0 + 64 * w + __builtin_ctzll(f);
+      if (k < k1) outliers[k] = OutlierBits(raw, k, h, a[k], b[k], outlier_px, window_x);
+    }
+  }
+}
+
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+// Whether the CPU has the extension and the tests allow it (dispatch.cc).
+bool HaveSsse3();
+bool HaveAvx2();
+
+// kernels_ssse3.cc: dst[i] = src[i * channels + channel] for i < pixels, channels 3 or 4.
+__attribute__((target("ssse3"))) void ChannelRowSsse3(const uint8_t* src, int pixels, int channels, int channel, uint8_t* dst);
+
+// kernels_avx2.cc (declared with the definitions' target attribute, as GCC needs). Step 1 of the row pass over the row's whole 64-pixel groups (see RowGroups):
+// returns the number of groups pushed, and in *next where it stopped.
+__attribute__((target("avx2"))) int RowGroupsAvx2(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, int threshold, int* starts,
+                  uint64_t* masks, int* next);
+// ScreenWindows, 8 points at a time.
+__attribute__((target("avx2"))) void ScreenWindowsAvx2(const float* rel, const float* af, const float* bf, int k0, int k1, int h, float limit,
+                       uint64_t* bits);
+// FlaggedOutliers, 4 neighbours at a time.
+__attribute__((target("avx2"))) void FlaggedOutliersAvx2(const float* raw, const double* a, const double* b, int k0, int k1, int h,
+                         double outlier_px, const uint64_t* flagged, const double* window_x, uint64_t* outliers);
+// SmoothAlongLine's first fits (order 0 or 1) of the points k in [k0, k1) whose window is whole (k0 >= h,
+// k1 <= len - h, k1 - k0 a multiple of 4), 4 points per turn: the same operations in the same order as
+// its scalar loop (smooth.cc: range_sums, then the whole-window solve), so the same bits. Returns the
+// largest |b|.
+__attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, const double* pjy, const double* pjjy, int k0, int k1, int h,
+                           bool slope, double inv_s0, double inv_s2, double origin, double* fit_a, double* fit_b,
+                           float* af, float* bf);
+#endif
+
+}  // namespace rotoscan::laser::detail

@@ -1,0 +1,365 @@
+// The along-line smoothing (design notes in extract.cc, "Along-line smoothing") and its limits.
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "extract_steps.h"
+#include "kernels.h"
+#include "rotoscan/core/check.h"
+
+namespace rotoscan::laser {
+namespace {
+
+// Scratch of the along-line smoothing, per thread (SmoothAlongLine is a free function with a
+// public signature; a thread-local buffer keeps it allocation-free from the second frame on).
+struct SmoothScratch {
+  std::vector<double> prefix;                     // prefix sums and first fits of a stretch
+  std::vector<uint64_t> bits;                     // the screen's flags, then outlier bits per point
+  std::vector<std::array<double, 3>> cumulative;  // running sums of w, w x, w x^2 over the window
+};
+SmoothScratch& smooth_scratch() {
+  thread_local SmoothScratch scratch;
+  return scratch;
+}
+
+}  // namespace
+
+void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, double max_jump_px,
+                     double outlier_px, std::vector<float>* scratch) {
+  using detail::FlaggedOutliers;
+  using detail::ScreenWindows;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  using detail::FlaggedOutliersAvx2;
+  using detail::HaveAvx2;
+  using detail::ScreenWindowsAvx2;
+  using detail::WholeWindowFitsAvx2;
+#endif
+  ROTOSCAN_CHECK(points != nullptr && scratch != nullptr && half_rows >= 0 && order >= 0 && order <= 2);
+  const int n = static_cast<int>(points->size());
+  if (half_rows == 0 || n < 2) return;
+  LinePoint* p = points->data();
+  // Floats: the raw columns, then per stretch (at most n points) the columns relative to the stretch's
+  // first and the first fit's a and b. Padding (pad = h + 8 entries) around raw and rel, for the vector
+  // outlier tests' reads past a window's ends (read, then masked), and after af and bf, for the screen's
+  // last group.
+  const size_t pad = static_cast<size_t>(half_rows) + 8;
+  const size_t un = static_cast<size_t>(n);
+  scratch->resize(4 * pad + 4 * un + 16);  // only raw's padding needs a value (finite: it is masked)
+  float* raw = scratch->data() + pad;
+  std::fill(raw - pad, raw, 0.0f);
+  std::fill(raw + un, raw + un + pad, 0.0f);
+  float* rel = raw + un + 2 * pad;
+  float* af = rel + un + pad;
+  float* bf = af + un + 8;
+  for (int i = 0; i < n; ++i) raw[i] = p[i].column;
+  // Order 2: the weighted least-squares polynomial c(x) = a + b x + q x^2 through the neighbours j of
+  // point i, x = j - i (a stretch has consecutive rows), triangular weight half_rows + 1 - |x|; the
+  // smoothed centre is a. Columns relative to raw[i] so that floats keep their precision. Plain scalar
+  // sums and Cramer's rule: this runs for every point of every frame (an Eigen 3x3 version cost 0.6 ms
+  // per 964-row frame, twice the whole extraction); `keep(j)` says whether j enters.
+  struct Fit {
+    double a = 0, b = 0, q = 0;
+  };
+  auto fit = [&](int i, int lo, int hi, auto&& keep) {
+    double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
+    const double ri = raw[i];
+    for (int j = lo; j <= hi; ++j) {
+      if (!keep(j)) continue;
+      const double x = j - i;
+      const double w = half_rows + 1 - std::abs(x);
+      const double y = raw[j] - ri;
+      const double wx = w * x, wxx = wx * x;
+      s0 += w;
+      s1 += wx;
+      s2 += wxx;
+      t0 += w * y;
+      t1 += wx * y;
+      if (order >= 2) {
+        s3 += wxx * x;
+        s4 += wxx * x * x;
+        t2 += wxx * y;
+      }
+    }
+    Fit f;
+    if (order >= 2) {
+      const double det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
+      if (std::abs(det) > 1e-9 * s0 * s2 * s4) {  // not enough distinct rows: fall back to the line
+        f.a = (t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2)) / det;
+        f.b = (s0 * (t1 * s4 - t2 * s3) - t0 * (s1 * s4 - s3 * s2) + s2 * (s1 * t2 - t1 * s2)) / det;
+        f.q = (s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)) / det;
+        f.a += ri;
+        return f;
+      }
+    }
+    const double det = s0 * s2 - s1 * s1;
+    if (order >= 1 && det > 1e-9 * s0 * s2) {
+      f.a = (s2 * t0 - s1 * t1) / det;
+      f.b = (s0 * t1 - s1 * t0) / det;
+    } else {
+      f.a = t0 / s0;
+    }
+    f.a += ri;
+    return f;
+  };
+  // Two passes: the second without the neighbours the first does not explain (a glint, a wrong peak),
+  // only when there are such. The point itself always stays, so its neighbours alone cannot move it.
+  auto robust_fit = [&](int i, int lo, int hi) {
+    const Fit first = fit(i, lo, hi, [](int) { return true; });
+    auto explained = [&](int j) {
+      const double x = j - i;
+      return j == i || std::abs(raw[j] - (first.a + x * (first.b + x * first.q))) <= outlier_px;
+    };
+    bool all = true;
+    for (int j = lo; j <= hi && all; ++j) all = explained(j);
+    return all ? first.a : fit(i, lo, hi, explained).a;
+  };
+  // Order 0 and 1 (the default): every fit from prefix sums in O(1). With j the index in the stretch and
+  // y the column relative to the stretch's first, the sums of the fit of point k over x in [xa, xb]
+  // (j = k + x) split at x = 0 into a left part with w = h + 1 + x and a right part with w = h + 1 - x,
+  // and each part's sum w y and w x y comes from the range sums of y, j y and j^2 y (x = j - k). The
+  // weights' sums s0, s1, s2 are integers, from running sums over x. A second fit whose kept neighbours
+  // are again a range around the point (outliers at the window's ends: a curved line) is O(1) the same
+  // way; other second fits subtract the outliers' terms from the first's sums.
+  const int h = half_rows;
+  SmoothScratch& buffers = smooth_scratch();
+  std::vector<double>& prefix = buffers.prefix;
+  std::vector<uint64_t>& bits = buffers.bits;
+  std::vector<std::array<double, 3>>& cumulative = buffers.cumulative;
+  cumulative.resize(static_cast<size_t>(2 * h + 2));
+  std::array<double, 3> weight_sums{};  // sums of w, w x, w x^2 over x = -h .. x - 1, at index x + h
+  for (int x = -h; x <= h; ++x) {
+    cumulative[static_cast<size_t>(x + h)] = weight_sums;
+    const double w = h + 1 - std::abs(x);
+    weight_sums[0] += w;
+    weight_sums[1] += w * x;
+    weight_sums[2] += w * x * x;
+  }
+  cumulative[static_cast<size_t>(2 * h + 1)] = weight_sums;
+  const double inv_s0_whole = 1.0 / weight_sums[0], inv_s2_whole = 1.0 / weight_sums[2];
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  const bool avx2 = HaveAvx2();
+#endif
+  // The exact outlier test of a flagged point in vectors (OutlierBits) while the window fits in the
+  // 64 bits; one neighbour at a time beyond.
+  const bool vector_test = 2 * h + 1 <= 64;
+  std::array<double, 64 + 4> window_x;
+  for (int k = 0; k < 64 + 4; ++k) window_x[static_cast<size_t>(k)] = k - h;
+  struct Sums {
+    double s0, s1, s2, t0, t1;
+  };
+  auto smooth_stretch = [&](int start, int end) {
+    const int len = end - start + 1;
+    if (len < 2) return;
+    if (order == 2) {
+      for (int i = start; i <= end; ++i) {
+        p[i].column = static_cast<float>(robust_fit(i, std::max(start, i - h), std::min(end, i + h)));
+      }
+      return;
+    }
+    const double origin = raw[start];
+    const size_t m = static_cast<size_t>(len);
+    prefix.resize(5 * (m + 1));
+    double* py = prefix.data();  // sums over j < index of y, j y, j^2 y
+    double* pjy = py + (m + 1);
+    double* pjjy = pjy + (m + 1);
+    double* fit_a = pjjy + (m + 1);  // the first fit, a absolute
+    double* fit_b = fit_a + (m + 1);
+    // The sums run in registers (a store and reload per step would put store forwarding on each chain).
+    double sy = 0, sjy = 0, sjjy = 0, max_rel = 0;
+    py[0] = pjy[0] = pjjy[0] = 0.0;
+    for (int k = 0; k < len; ++k) {
+      const double y = raw[start + k] - origin;
+      rel[k] = static_cast<float>(y);
+      max_rel = std::max(max_rel, std::abs(y));
+      sy += y;
+      sjy += k * y;
+      sjjy += static_cast<double>(k) * k * y;
+      py[k + 1] = sy;
+      pjy[k + 1] = sjy;
+      pjjy[k + 1] = sjjy;
+    }
+    // Outside the stretch the screen reads NaN, which its maxima skip: its windows end where the
+    // stretch does.
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    std::fill(rel - pad, rel, nan);
+    std::fill(rel + len, rel + len + pad, nan);
+    auto window = [&](int k, int* xa, int* xb) {
+      *xa = std::max(-h, -k);
+      *xb = std::min(h, len - 1 - k);
+    };
+    auto range_sums = [&](int k, int xa, int xb) {
+      const std::array<double, 3>& hi = cumulative[static_cast<size_t>(xb + h + 1)];
+      const std::array<double, 3>& lo = cumulative[static_cast<size_t>(xa + h)];
+      const double kd = k;
+      const double ly = py[k] - py[k + xa], ljy = pjy[k] - pjy[k + xa], ljjy = pjjy[k] - pjjy[k + xa];
+      const double ry = py[k + xb + 1] - py[k], rjy = pjy[k + xb + 1] - pjy[k], rjjy = pjjy[k + xb + 1] - pjjy[k];
+      const double lxy = ljy - kd * ly, lxxy = ljjy - 2 * kd * ljy + kd * kd * ly;
+      const double rxy = rjy - kd * ry, rxxy = rjjy - 2 * kd * rjy + kd * kd * ry;
+      const double hp = h + 1;
+      return Sums{hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], hp * (ly + ry) + lxy - rxy, hp * (lxy + rxy) + lxxy - rxxy};
+    };
+    // a (relative) and b of the fit with these sums, as the general fit solves it.
+    auto solve = [&](const Sums& u, double* fa, double* fb) {
+      const double det = u.s0 * u.s2 - u.s1 * u.s1;
+      if (order >= 1 && det > 1e-9 * u.s0 * u.s2) {
+        const double inverse = 1.0 / det;
+        *fa = (u.s2 * u.t0 - u.s1 * u.t1) * inverse;
+        *fb = (u.s0 * u.t1 - u.s1 * u.t0) * inverse;
+      } else {
+        *fa = u.t0 / u.s0;
+        *fb = 0.0;
+      }
+    };
+    double max_b = 0;
+    int vector_from = len, vector_to = len;  // the whole windows done 4 at a time
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+    if (avx2 && len - 2 * h >= 4) {
+      vector_from = h;
+      vector_to = h + (len - 2 * h) / 4 * 4;
+      max_b = WholeWindowFitsAvx2(py, pjy, pjjy, vector_from, vector_to, h, order >= 1, inv_s0_whole, inv_s2_whole,
+                                  origin, fit_a, fit_b, af, bf);
+    }
+#endif
+    for (int k = 0; k < len; ++k) {
+      if (k == vector_from) {
+        k = vector_to - 1;
+        continue;
+      }
+      int xa, xb;
+      window(k, &xa, &xb);
+      double fa, fb;
+      const Sums u = range_sums(k, xa, xb);
+      if (xa == -h && xb == h) {  // a whole window: s1 = 0, no division
+        fa = u.t0 * inv_s0_whole;
+        fb = order >= 1 ? u.t1 * inv_s2_whole : 0.0;
+      } else {
+        solve(u, &fa, &fb);
+      }
+      fit_a[k] = fa + origin;
+      fit_b[k] = fb;
+      af[k] = static_cast<float>(fa);
+      bf[k] = static_cast<float>(fb);
+      max_b = std::max(max_b, std::abs(fb));
+    }
+    // The screen: which points' windows may hold a neighbour the first fit does not explain. Its float
+    // residuals are off from the double ones by a few ulp of the largest value involved; the margin
+    // covers 16, so every point the exact test finds an outlier for is flagged.
+    const double magnitude = max_rel + h * max_b + outlier_px + 1.0;
+    const double margin = 1e-3 + 16.0 * std::numeric_limits<float>::epsilon() * magnitude;
+    const float limit = static_cast<float>(outlier_px - margin);
+    const size_t words = m / 64 + 1;
+    bits.assign(words + m, 0);  // the screen's bits, then the flagged points' outlier bits
+    uint64_t* flagged = bits.data();
+    uint64_t* outliers = flagged + words;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+    if (avx2) {
+      ScreenWindowsAvx2(rel, af, bf, 0, len, h, limit, flagged);
+    } else
+#endif
+    {
+      ScreenWindows(rel, af, bf, 0, len, h, limit, flagged);
+    }
+    if (vector_test) {  // the exact test of the flagged points, before the window's ends are masked
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+      if (avx2) {
+        FlaggedOutliersAvx2(raw + start, fit_a, fit_b, 0, len, h, outlier_px, flagged, window_x.data(), outliers);
+      } else
+#endif
+      {
+        FlaggedOutliers(raw + start, fit_a, fit_b, 0, len, h, outlier_px, flagged, window_x.data(), outliers);
+      }
+    }
+    for (int k = 0; k < len; ++k) {
+      const int i = start + k;
+      if (!((flagged[static_cast<size_t>(k) >> 6] >> (k & 63)) & 1u)) {
+        p[i].column = static_cast<float>(fit_a[k]);
+        continue;
+      }
+      int xa, xb;
+      window(k, &xa, &xb);
+      uint64_t dropped = 0;  // bits x + h, while vector_test
+      if (vector_test) {
+        const uint64_t in_window = (~uint64_t{0} >> (63 - (xb - xa))) << (xa + h);  // bits xa + h .. xb + h
+        dropped = outliers[k] & in_window;
+        if (dropped == 0) {
+          p[i].column = static_cast<float>(fit_a[k]);
+          continue;
+        }
+        const uint64_t kept = in_window & ~dropped;  // holds bit h: the point itself always stays
+        const uint64_t run = kept >> __builtin_ctzll(kept);
+        if ((run & (run + 1)) == 0) {  // the kept neighbours are a range: O(1)
+          double fa, fb;
+          solve(range_sums(k, __builtin_ctzll(kept) - h, 63 - __builtin_clzll(kept) - h), &fa, &fb);
+          p[i].column = static_cast<float>(fa + origin);
+          continue;
+        }
+      }
+      // The first fit's sums less the outliers' terms.
+      Sums u = range_sums(k, xa, xb);
+      bool any = false;
+      auto drop = [&](int x) {
+        any = true;
+        const double w = h + 1 - std::abs(x);
+        const double y = raw[i + x] - origin;
+        u.s0 -= w;
+        u.s1 -= w * x;
+        u.s2 -= w * x * x;
+        u.t0 -= w * y;
+        u.t1 -= w * x * y;
+      };
+      if (vector_test) {
+        for (uint64_t o = dropped; o != 0; o &= o - 1) drop(__builtin_ctzll(o) - h);
+      } else {
+        for (int x = xa; x <= xb; ++x) {
+          if (x != 0 && std::abs(raw[i + x] - (fit_a[k] + x * fit_b[k])) > outlier_px) drop(x);
+        }
+      }
+      double fa = fit_a[k] - origin, fb;
+      if (any) solve(u, &fa, &fb);
+      p[i].column = static_cast<float>(fa + origin);
+    }
+  };
+  // Stretches: runs of consecutive rows whose column steps are at most max_jump_px. A line steeper than
+  // that (a surface seen at a grazing angle: wide, unreliable rows) is not smoothed, nor are its rows
+  // joined to their neighbours: measured on Spot (rotoscan evaluate --lines, 100 frames), joining rows
+  // whose step merely continues the local slope raised the line centre error from 0.217 to 0.263 px.
+  auto continues = [&](int k) {
+    return p[k + 1].row == p[k].row + 1 && std::abs(raw[k + 1] - raw[k]) <= max_jump_px;
+  };
+  int start = 0;  // first point of the current stretch
+  while (start < n) {
+    int end = start;  // last point of the stretch, inclusive
+    while (end + 1 < n && continues(end)) ++end;
+    smooth_stretch(start, end);
+    start = end + 1;
+  }
+}
+
+namespace detail {
+
+void LimitSmoothing(const std::vector<float>& own_columns, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& points = *line_points;
+  const size_t n = points.size();
+  // The smoothing's limits: a point moves by at most its uncertainty, and keeps its own estimate where
+  // the profile changes (saturation begins or ends, or the profile is lopsided: texture, an edge).
+  for (size_t i = 0; i < n; ++i) {
+    LinePoint& p = points[i];
+    const float own = own_columns[i];
+    const bool saturated = (p.flags & kFlagSaturated) != 0;
+    const bool change =
+        (i > 0 && points[i - 1].row + 1 == p.row && ((points[i - 1].flags & kFlagSaturated) != 0) != saturated) ||
+        (i + 1 < n && points[i + 1].row == p.row + 1 && ((points[i + 1].flags & kFlagSaturated) != 0) != saturated) ||
+        (p.flags & kFlagLopsided) != 0;
+    if (change) {
+      p.column = own;
+      continue;
+    }
+    p.column = own + std::clamp(p.column - own, -p.uncertainty_px, p.uncertainty_px);
+  }
+}
+
+}  // namespace detail
+}  // namespace rotoscan::laser

@@ -1,0 +1,158 @@
+// The extractor's instruction-set paths against each other (host/lib/src/laser/kernels.h): each SSE2
+// kernel must compute exactly what its portable namesake does, on random rows with saturated pixels,
+// random runs (at the row's ends too) and rows narrower than a vector. The extractor's own tests run the
+// AVX2 and SSSE3 paths against the SSE2 one (internal::AllowVectorExtensions); on x86-64 the portable
+// kernels run nowhere else.
+#include <algorithm>
+#include <cstdint>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "laser/kernels.h"
+
+namespace rotoscan::laser::detail {
+namespace {
+
+#if defined(__SSE2__)
+
+// A row of `cols` pixels with kPad zero bytes either side, as the extractor keeps its difference row.
+struct PaddedRow {
+  explicit PaddedRow(int cols) : bytes(static_cast<size_t>(cols) + 2 * kPad, 0) {}
+  uint8_t* data() { return bytes.data() + kPad; }
+  std::vector<uint8_t> bytes;
+};
+
+// Laser-like rows: a background, a bright saturated stretch, dips (notches) and noise.
+void RandomRows(std::mt19937* rng, int cols, std::vector<uint8_t>* on, std::vector<uint8_t>* off) {
+  std::uniform_int_distribution<int> byte(0, 255), coin(0, 3);
+  on->assign(static_cast<size_t>(cols), 0);
+  off->assign(static_cast<size_t>(cols), 0);
+  const int centre = std::uniform_int_distribution<int>(0, cols - 1)(*rng);
+  for (int i = 0; i < cols; ++i) {
+    const int b = coin(*rng) == 0 ? byte(*rng) : 40 + (i * 7) % 50;
+    int a = b + std::max(0, 300 - 30 * std::abs(i - centre)) + coin(*rng);
+    if (coin(*rng) == 0) a = byte(*rng);
+    (*off)[static_cast<size_t>(i)] = static_cast<uint8_t>(b);
+    (*on)[static_cast<size_t>(i)] = static_cast<uint8_t>(std::min(a, 255));
+  }
+}
+
+TEST(KernelsTest, Sse2MatchesPortableOnRandomRows) {
+  std::mt19937 rng(15);
+  for (int trial = 0; trial < 3000; ++trial) {
+    const int cols = trial % 5 == 0 ? std::uniform_int_distribution<int>(1, 15)(rng)
+                                    : std::uniform_int_distribution<int>(16, 200)(rng);
+    std::vector<uint8_t> on, off;
+    RandomRows(&rng, cols, &on, &off);
+    const int threshold = std::uniform_int_distribution<int>(1, 60)(rng);
+    // Step 1: the difference and its groups, the SSE2 groups then the portable tail as RowPass runs them.
+    PaddedRow d_portable(cols), d_sse2(cols);
+    std::vector<int> starts_portable(static_cast<size_t>(cols) / 16 + 3), starts_sse2(starts_portable.size());
+    std::vector<uint64_t> masks_portable(starts_portable.size()), masks_sse2(starts_portable.size());
+    int next_portable = 0, next_sse2 = 0;
+    const int count_portable = scalar::RowGroups(on.data(), off.data(), d_portable.data(), cols, threshold,
+                                                 starts_portable.data(), masks_portable.data(), 0, &next_portable);
+    int count_sse2 = sse2::RowGroups(on.data(), off.data(), d_sse2.data(), cols, threshold, starts_sse2.data(),
+                                     masks_sse2.data(), 0, &next_sse2);
+    count_sse2 = scalar::RowGroups(on.data(), off.data(), d_sse2.data(), cols, threshold, starts_sse2.data(),
+                                   masks_sse2.data(), count_sse2, &next_sse2);
+    ASSERT_EQ(d_portable.bytes, d_sse2.bytes) << "cols " << cols;
+    // The groups differ in layout (64 against 16 pixels); the pixels they mark must not.
+    auto marked = [cols](const std::vector<int>& starts, const std::vector<uint64_t>& masks, int count) {
+      std::vector<bool> bits(static_cast<size_t>(cols), false);
+      for (int k = 0; k < count; ++k) {
+        for (int j = 0; j < 64; ++j) {
+          if ((masks[static_cast<size_t>(k)] >> j) & 1u) bits[static_cast<size_t>(starts[static_cast<size_t>(k)] + j)] = true;
+        }
+      }
+      return bits;
+    };
+    ASSERT_EQ(marked(starts_portable, masks_portable, count_portable), marked(starts_sse2, masks_sse2, count_sse2));
+
+    std::uniform_int_distribution<int> pixel(0, cols - 1);
+    for (int run = 0; run < 8; ++run) {
+      int first = pixel(rng), last = pixel(rng);
+      if (first > last) std::swap(first, last);
+      uint8_t* d = d_sse2.data();
+      const PeakInRun peak_portable = scalar::FindPeak(d, first, last), peak_sse2 = sse2::FindPeak(d, first, last);
+      ASSERT_EQ(peak_portable.value, peak_sse2.value);
+      ASSERT_EQ(peak_portable.position, peak_sse2.position);
+      const int level = std::uniform_int_distribution<int>(1, 255)(rng);
+      const int at = pixel(rng);
+      ASSERT_EQ(scalar::ExtentLeft(d, at, level), sse2::ExtentLeft(d, at, level));
+      ASSERT_EQ(scalar::ExtentRight(d, at, level), sse2::ExtentRight(d, at, level));
+      ASSERT_EQ(scalar::CenterOfMassOver(d, first, last, peak_portable.value),
+                sse2::CenterOfMassOver(d, first, last, peak_portable.value));
+      const NotchScan notch_portable = scalar::ScanNotch(on.data(), off.data(), first, last, cols);
+      const NotchScan notch_sse2 = sse2::ScanNotch(on.data(), off.data(), first, last, cols);
+      ASSERT_EQ(notch_portable.best_difference, notch_sse2.best_difference);
+      ASSERT_EQ(notch_portable.worst_saturated, notch_sse2.worst_saturated);
+      ASSERT_EQ(scalar::SumRange(off.data(), first, last, cols), sse2::SumRange(off.data(), first, last, cols));
+      // Either side may be empty, never outside the row.
+      const int middle = std::uniform_int_distribution<int>(std::max(first - 2, -1), std::min(last + 2, cols))(rng);
+      const SidesSum sides_portable = scalar::SumsAround(off.data(), first, middle, last, cols);
+      const SidesSum sides_sse2 = sse2::SumsAround(off.data(), first, middle, last, cols);
+      ASSERT_EQ(sides_portable.left, sides_sse2.left);
+      ASSERT_EQ(sides_portable.right, sides_sse2.right);
+      // The notch filling writes the row: each path on its own copy; one run in four all zero (its peak
+      // is 0 at its first pixel).
+      PaddedRow fill_portable = d_sse2, fill_sse2 = d_sse2;
+      if (run % 4 == 0) {
+        std::fill(fill_portable.data() + first, fill_portable.data() + last + 1, 0);
+        std::fill(fill_sse2.data() + first, fill_sse2.data() + last + 1, 0);
+      }
+      const PeakInRun filled_portable =
+          scalar::FillPlateau(on.data(), off.data(), fill_portable.data(), first, last, cols, threshold);
+      const PeakInRun filled_sse2 =
+          sse2::FillPlateau(on.data(), off.data(), fill_sse2.data(), first, last, cols, threshold);
+      ASSERT_EQ(fill_portable.bytes, fill_sse2.bytes) << "cols " << cols << " run " << first << ".." << last;
+      ASSERT_EQ(filled_portable.value, filled_sse2.value);
+      ASSERT_EQ(filled_portable.position, filled_sse2.position);
+    }
+  }
+}
+
+TEST(KernelsTest, SmoothingScreensMatchPortable) {
+  std::mt19937 rng(17);
+  std::normal_distribution<float> noise(0.0f, 0.3f);
+  for (int trial = 0; trial < 300; ++trial) {
+    const int h = std::uniform_int_distribution<int>(1, 20)(rng);
+    const int n = std::uniform_int_distribution<int>(1, 150)(rng);
+    const int pad = h + 8;
+    // rel with NaN outside the stretch, af and bf readable 8 past the end (the screen's contract).
+    std::vector<float> rel(static_cast<size_t>(n + 2 * pad), std::numeric_limits<float>::quiet_NaN());
+    std::vector<float> af(static_cast<size_t>(n + 8), 0.0f), bf(af.size(), 0.0f);
+    std::vector<float> raw(static_cast<size_t>(n + 2 * pad), 0.0f);
+    const float slope = noise(rng);
+    for (int k = 0; k < n; ++k) {
+      rel[static_cast<size_t>(pad + k)] = slope * k + noise(rng) + (k % 17 == 3 ? 2.0f : 0.0f);
+      raw[static_cast<size_t>(pad + k)] = rel[static_cast<size_t>(pad + k)];
+      af[static_cast<size_t>(k)] = slope * k;
+      bf[static_cast<size_t>(k)] = slope;
+    }
+    const float limit = 0.5f;
+    std::vector<uint64_t> bits_portable(static_cast<size_t>(n) / 64 + 2, 0), bits_sse2(bits_portable.size(), 0);
+    scalar::ScreenWindows(rel.data() + pad, af.data(), bf.data(), 0, n, h, limit, bits_portable.data());
+    sse2::ScreenWindows(rel.data() + pad, af.data(), bf.data(), 0, n, h, limit, bits_sse2.data());
+    for (int k = 0; k < n; ++k) {
+      ASSERT_EQ((bits_portable[static_cast<size_t>(k) / 64] >> (k % 64)) & 1u, (bits_sse2[static_cast<size_t>(k) / 64] >> (k % 64)) & 1u)
+          << "h " << h << " point " << k;
+    }
+    if (2 * h + 1 > 64) continue;
+    std::vector<double> window_x(64 + 4);
+    for (int k = 0; k < 64 + 4; ++k) window_x[static_cast<size_t>(k)] = k - h;
+    for (int k = 0; k < n; ++k) {
+      const double a = af[static_cast<size_t>(k)], b = bf[static_cast<size_t>(k)];
+      ASSERT_EQ(scalar::OutlierBits(raw.data() + pad, k, h, a, b, 0.5, window_x.data()),
+                sse2::OutlierBits(raw.data() + pad, k, h, a, b, 0.5, window_x.data()));
+    }
+  }
+}
+
+#endif  // __SSE2__
+
+}  // namespace
+}  // namespace rotoscan::laser::detail
