@@ -68,7 +68,8 @@ int RunMerge(const MergeCommandOptions& o, const Context& context) {
       if (!placement.ok()) return fail(placement.status().WithContext("--truth"));
       auto mesh = bundle::ReadPlyMesh(bundle::TruthMeshPath(o.truth[k]));
       if (!mesh.ok()) return fail(mesh.status().WithContext("--truth"));
-      const Eigen::Isometry3d truth = reference->table_from_reference * placement->table_from_reference.inverse();
+      const Eigen::Isometry3d truth =
+          reference->table_from_reference * placement->table_from_reference.inverse();
       const pipeline::AlignmentError e = pipeline::MeasureAlignmentError(
           merged->placements[k].alignment.target_from_source, truth, mesh->vertices, mesh->faces);
       *context.out << "placement " << k << " against the truth: alignment error " << e.rms_mm

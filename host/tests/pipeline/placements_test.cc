@@ -93,7 +93,8 @@ TEST(PlacementsTest, SpotOnItsSideIsAlignedToTheTruth) {
   ASSERT_EQ(merged->placements.size(), 2u);
   const Eigen::Isometry3d truth = upright.table_from_reference * side.table_from_reference.inverse();
   const AlignResult& a = merged->placements[1].alignment;
-  const AlignmentError e = MeasureAlignmentError(a.target_from_source, truth, side.mesh.vertices, side.mesh.faces);
+  const AlignmentError e =
+      MeasureAlignmentError(a.target_from_source, truth, side.mesh.vertices, side.mesh.faces);
   EXPECT_LE(e.rms_mm, 0.02) << FormatPlacementReport(*merged);
   EXPECT_LE(e.angle_deg, 0.02) << FormatPlacementReport(*merged);
   EXPECT_FALSE(a.from_hint);
@@ -145,13 +146,16 @@ TEST(PlacementsTest, SphereIsRefusedAsAmbiguousAndAHintDecides) {
   EXPECT_TRUE(a.from_hint);
   const Eigen::Vector3d centre(0, 0, 25);  // in both frames
   EXPECT_LT((a.target_from_source * centre - truth * centre).norm(), 0.02);
-  EXPECT_THAT(a.target_from_source.linear(), testing::EigenNear(hint.linear(), 1e-12));  // the hint's rotation
+  EXPECT_THAT(a.target_from_source.linear(),
+              testing::EigenNear(hint.linear(), 1e-12));  // the hint's rotation
 }
 
 TEST(PlacementsTest, CloudsSharingNothingAreRefused) {
   const Placed upright = PlaceSpot(0);
-  const cloud::PointCloud front = SampleScan(upright.mesh, 0.6, 0.03, 5, [](const Eigen::Vector3d& p) { return p.y() < -12; });
-  const cloud::PointCloud back = SampleScan(upright.mesh, 0.6, 0.03, 6, [](const Eigen::Vector3d& p) { return p.y() > 12; });
+  const cloud::PointCloud front =
+      SampleScan(upright.mesh, 0.6, 0.03, 5, [](const Eigen::Vector3d& p) { return p.y() < -12; });
+  const cloud::PointCloud back =
+      SampleScan(upright.mesh, 0.6, 0.03, 6, [](const Eigen::Vector3d& p) { return p.y() > 12; });
   ASSERT_GT(front.size(), 1000u);
   ASSERT_GT(back.size(), 1000u);
   auto merged = MergePlacements({front, back}, TestOptions());
@@ -211,14 +215,12 @@ TEST(PlacementsTest, MergeCommandWritesPlacementsPerPoint) {
   ASSERT_TRUE(cloud::WritePly(dir / "b.ply", SampleScan(side.mesh, 0.6, 0.03, 8)).ok());
   std::ostringstream out, err;
   const std::string a = (dir / "a.ply").string(), b = (dir / "b.ply").string(), m = (dir / "m.ply").string();
-  EXPECT_EQ(RunCli({"merge", a, b, "--hint", "1,2", "--out", m}, out, err),
-            cli::kExitFailure);
+  EXPECT_EQ(RunCli({"merge", a, b, "--hint", "1,2", "--out", m}, out, err), cli::kExitFailure);
   EXPECT_NE(err.str().find("hint"), std::string::npos) << err.str();
   EXPECT_FALSE(std::filesystem::exists(m));
   out.str("");
   err.str("");
-  ASSERT_EQ(RunCli({"merge", a, b, "--out", m}, out, err), cli::kExitOk)
-      << err.str();
+  ASSERT_EQ(RunCli({"merge", a, b, "--out", m}, out, err), cli::kExitOk) << err.str();
   EXPECT_NE(out.str().find("aligned automatically"), std::string::npos) << out.str();
   EXPECT_NE(out.str().find("disagreement"), std::string::npos) << out.str();
   auto read = cloud::ReadPly(m);

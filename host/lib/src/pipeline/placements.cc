@@ -114,7 +114,8 @@ std::vector<Eigen::Matrix3d> CubeRotations() {
 
 Status AlignOptions::Check() const {
   auto positive = [](double v) { return v > 0 && std::isfinite(v); };
-  if (!positive(voxel_mm) || voxel_mm > 100) return InvalidArgumentError("align: voxel_mm must be in (0, 100]");
+  if (!positive(voxel_mm) || voxel_mm > 100)
+    return InvalidArgumentError("align: voxel_mm must be in (0, 100]");
   if (!(fine_voxel_mm >= 0 && fine_voxel_mm <= voxel_mm)) {
     return InvalidArgumentError("align: fine_voxel_mm must be in [0, voxel_mm]");
   }
@@ -126,14 +127,16 @@ Status AlignOptions::Check() const {
   if (!(ransac_confidence > 0 && ransac_confidence <= 1)) {
     return InvalidArgumentError("align: ransac_confidence must be in (0, 1]");
   }
-  if (!(min_overlap >= 0 && min_overlap <= 1)) return InvalidArgumentError("align: min_overlap must be in [0, 1]");
+  if (!(min_overlap >= 0 && min_overlap <= 1))
+    return InvalidArgumentError("align: min_overlap must be in [0, 1]");
   if (!(ambiguity_ratio > 0 && ambiguity_ratio <= 1)) {
     return InvalidArgumentError("align: ambiguity_ratio must be in (0, 1]");
   }
   if (!positive(distinct_deg) || !positive(distinct_mm)) {
     return InvalidArgumentError("align: distinct_deg and distinct_mm must be > 0");
   }
-  if (random_starts < 0 || random_starts > 10000) return InvalidArgumentError("align: random_starts in [0, 10000]");
+  if (random_starts < 0 || random_starts > 10000)
+    return InvalidArgumentError("align: random_starts in [0, 10000]");
   if (hint && !hint->matrix().allFinite()) return InvalidArgumentError("align: the hint is not finite");
   return Status::Ok();
 }
@@ -222,10 +225,11 @@ Result<AlignResult> AlignClouds(const cloud::PointCloud& target, const cloud::Po
   result.coarse_overlap = best_sparse;
   std::ostringstream figures;
   figures.precision(3);
-  figures << "best overlap " << best_sparse << " at " << sparse_distance << " mm, the best distinct alternative "
-          << result.alternative_overlap << " (" << result.alternative_deg << " deg, " << result.alternative_mm
-          << " mm away)";
-  const bool ambiguous = best_sparse <= 0 || result.alternative_overlap >= options.ambiguity_ratio * best_sparse;
+  figures << "best overlap " << best_sparse << " at " << sparse_distance
+          << " mm, the best distinct alternative " << result.alternative_overlap << " ("
+          << result.alternative_deg << " deg, " << result.alternative_mm << " mm away)";
+  const bool ambiguous =
+      best_sparse <= 0 || result.alternative_overlap >= options.ambiguity_ratio * best_sparse;
   if (ambiguous && !options.hint) {
     return FailedPreconditionError(
         "the alignment is ambiguous: another pose of the cloud fits nearly as well (" + figures.str() +
@@ -241,14 +245,14 @@ Result<AlignResult> AlignClouds(const cloud::PointCloud& target, const cloud::Po
   const auto target_fine = ToOpen3d(target, options.fine_voxel_mm);
   if (ambiguous) {
     // The rotation is not observable (a symmetric object): keep the hint's and fit the translation alone.
-    result.target_from_source =
-        RefineTranslation(*source_fine, *target_fine, *options.hint, {d0, d1, coarse_distance, options.icp_distance_mm});
+    result.target_from_source = RefineTranslation(*source_fine, *target_fine, *options.hint,
+                                                  {d0, d1, coarse_distance, options.icp_distance_mm});
   } else {
     result.target_from_source =
         Refine(*source_fine, *target_fine, best, {coarse_distance, options.icp_distance_mm}, 50);
   }
-  const reg::RegistrationResult fit = reg::EvaluateRegistration(*source_fine, *target_fine, options.icp_distance_mm,
-                                                                result.target_from_source.matrix());
+  const reg::RegistrationResult fit = reg::EvaluateRegistration(
+      *source_fine, *target_fine, options.icp_distance_mm, result.target_from_source.matrix());
   result.overlap = fit.fitness_;
   result.residual_mm = fit.inlier_rmse_;
   scope.Advance();
@@ -290,7 +294,8 @@ Result<MergePlacementsResult> MergePlacements(const std::vector<cloud::PointClou
     align.hint = hints.empty() ? std::nullopt : hints[k];
     auto aligned = AlignClouds(merged, clouds[k], align, progress);
     if (!aligned.ok()) {
-      return aligned.status().WithContext("cloud " + std::to_string(k) + " (placement " + std::to_string(k) + ")");
+      return aligned.status().WithContext("cloud " + std::to_string(k) + " (placement " + std::to_string(k) +
+                                          ")");
     }
     PlacementReport report;
     report.placement = static_cast<int>(k);
@@ -390,15 +395,17 @@ Result<Eigen::Isometry3d> ParsePoseHint(const std::string& text) {
     Eigen::Matrix4d m;
     for (int i = 0; i < 16; ++i) m(i / 4, i % 4) = v[static_cast<size_t>(i)];
     const Eigen::Matrix3d r = m.topLeftCorner<3, 3>();
-    if ((r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-4 || r.determinant() < 0 ||
-        m.row(3).cwiseAbs().sum() - 1.0 > 1e-9 || std::abs(m(3, 3) - 1.0) > 1e-9) {
+    if ((r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-4 ||
+        r.determinant() < 0 || m.row(3).cwiseAbs().sum() - 1.0 > 1e-9 || std::abs(m(3, 3) - 1.0) > 1e-9) {
       return InvalidArgumentError("hint: the 4x4 matrix is not a rigid transform");
     }
     pose.matrix() = m;
     return pose;
   }
-  return InvalidArgumentError("hint: expected 6 numbers (rx,ry,rz in degrees, tx,ty,tz in mm) or 16 (a 4x4 "
-                              "matrix, row-major), got " + std::to_string(v.size()));
+  return InvalidArgumentError(
+      "hint: expected 6 numbers (rx,ry,rz in degrees, tx,ty,tz in mm) or 16 (a 4x4 "
+      "matrix, row-major), got " +
+      std::to_string(v.size()));
 }
 
 std::string FormatPlacementReport(const MergePlacementsResult& result) {
@@ -411,9 +418,10 @@ std::string FormatPlacementReport(const MergePlacementsResult& result) {
       const AlignResult& a = p.alignment;
       const Eigen::AngleAxisd aa(a.target_from_source.linear());
       out << ", aligned " << (a.from_hint ? "from the hint" : "automatically") << ": overlap "
-          << 100 * a.overlap << " %, residual " << a.residual_mm << " mm RMS; rotation " << aa.angle() * 180 / kPi
-          << " deg, translation " << a.target_from_source.translation().norm() << " mm; best distinct alternative "
-          << 100 * a.alternative_overlap << " % of " << a.alternatives_tried << " tried";
+          << 100 * a.overlap << " %, residual " << a.residual_mm << " mm RMS; rotation "
+          << aa.angle() * 180 / kPi << " deg, translation " << a.target_from_source.translation().norm()
+          << " mm; ambiguity test: " << 100 * a.coarse_overlap << " % against " << 100 * a.alternative_overlap
+          << " % for the best distinct pose of " << a.alternatives_tried << " other starts";
     }
     const cloud::LaserDisagreement& d = p.disagreement;
     if (d.pairs == 0) {

@@ -12,8 +12,9 @@ namespace rotoscan::sim {
 Result<Scene> PlaceScene(const Scene& scene, int placement, Eigen::Isometry3d* table_from_reference) {
   const int count = scene.placements.empty() ? 1 : static_cast<int>(scene.placements.size());
   if (placement < 0 || placement >= count) {
-    return InvalidArgumentError("placement " + std::to_string(placement) + " is not defined by the scene (it has " +
-                                std::to_string(count) + ": 'placements' in the scene JSON, sim/scene.h)");
+    return InvalidArgumentError("placement " + std::to_string(placement) +
+                                " is not defined by the scene (it has " + std::to_string(count) +
+                                ": 'placements' in the scene JSON, sim/scene.h)");
   }
   Eigen::Isometry3d moved = Eigen::Isometry3d::Identity();
   Scene placed = scene;
@@ -39,7 +40,8 @@ Result<Scene> PlaceScene(const Scene& scene, int placement, Eigen::Isometry3d* t
     }
     if (meshes.empty()) return InvalidArgumentError("the scene has no object to place");
     moved.linear() = rotation;
-    moved.translation() = Eigen::Vector3d(-(lo.x() + hi.x()) / 2, -(lo.y() + hi.y()) / 2, -lo.z()) + p.position_mm;
+    moved.translation() =
+        Eigen::Vector3d(-(lo.x() + hi.x()) / 2, -(lo.y() + hi.y()) / 2, -lo.z()) + p.position_mm;
     for (size_t i = 0; i < placed.objects.size(); ++i) {
       placed.objects[i].has_pose = true;
       placed.objects[i].table_from_object = moved * meshes[i].table_from_object;

@@ -48,8 +48,8 @@ struct AlignOptions {
   double feature_radius_mm = 5.0;  // FPFH support radius
   int ransac_iterations = 100000;
   double ransac_confidence = 0.999;
-  double icp_distance_mm = 0.5;  // last ICP stage and the overlap's distance
-  double min_overlap = 0.15;     // fraction of the source; less is refused
+  double icp_distance_mm = 0.5;   // last ICP stage and the overlap's distance
+  double min_overlap = 0.15;      // fraction of the source; less is refused
   double ambiguity_ratio = 0.85;  // a distinct alternative scoring at least this x the best: ambiguous
   double distinct_deg = 3.0;      // alternatives closer than this (and distinct_mm) are the same answer
   double distinct_mm = 1.0;
@@ -62,7 +62,7 @@ struct AlignOptions {
 
 struct AlignResult {
   Eigen::Isometry3d target_from_source = Eigen::Isometry3d::Identity();
-  double overlap = 0;    // fraction of source points with a target point within icp_distance_mm
+  double overlap = 0;      // fraction of source points with a target point within icp_distance_mm
   double residual_mm = 0;  // RMS distance of those pairs
   bool from_hint = false;
   double global_fitness = 0;  // RANSAC's fitness (fraction of source points with an inlier), 0 with a hint
@@ -83,7 +83,7 @@ Result<AlignResult> AlignClouds(const cloud::PointCloud& target, const cloud::Po
 struct PlacementReport {
   int placement = 0;  // index in the merged cloud (the order of the inputs)
   size_t points = 0;
-  AlignResult alignment;              // identity for placement 0
+  AlignResult alignment;                  // identity for placement 0
   cloud::LaserDisagreement disagreement;  // this placement against all the others, after alignment
 };
 
