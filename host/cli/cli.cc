@@ -39,7 +39,7 @@ int Main(int argc, const char* const* argv, std::ostream& out, std::ostream& err
   int exit_code = kExitOk;
   for (Registrar registrar :
        {RegisterDemo, RegisterSimulate, RegisterCalibrate, RegisterExtract, RegisterProcess, RegisterMesh,
-        RegisterEvaluate, RegisterScan, RegisterDevice, RegisterBench}) {
+        RegisterEvaluate, RegisterScan, RegisterDevice, RegisterBench, RegisterMerge}) {
     registrar(app, context, &exit_code);
   }
   // Global options must be applied before a command's callback runs.

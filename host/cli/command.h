@@ -39,6 +39,7 @@ void RegisterCalibrate(CLI::App& app, const Context& context, int* exit_code);
 void RegisterExtract(CLI::App& app, const Context& context, int* exit_code);
 void RegisterProcess(CLI::App& app, const Context& context, int* exit_code);
 void RegisterMesh(CLI::App& app, const Context& context, int* exit_code);
+void RegisterMerge(CLI::App& app, const Context& context, int* exit_code);
 void RegisterEvaluate(CLI::App& app, const Context& context, int* exit_code);
 void RegisterScan(CLI::App& app, const Context& context, int* exit_code);
 void RegisterDevice(CLI::App& app, const Context& context, int* exit_code);

@@ -18,6 +18,8 @@ struct ProcessCommandOptions {
   std::string lasers = "both";
   double min_quality = 0.0;
   std::string dark_frame;
+  std::string color = "views";
+  std::vector<double> lamp;
 };
 
 int RunProcess(const ProcessCommandOptions& o, const Context& context) {
@@ -35,6 +37,17 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
   options.threads = o.threads;
   options.merge = !o.no_merge;
   options.min_quality = static_cast<float>(o.min_quality);
+  if (o.color == "step") {
+    options.color.enabled = false;
+  } else if (o.color == "views-shaded") {
+    options.color.remove_shading = false;
+  } else if (o.color != "views") {
+    return fail(InvalidArgumentError("--color must be views, views-shaded or step"));
+  }
+  if (!o.lamp.empty()) {
+    if (o.lamp.size() != 3) return fail(InvalidArgumentError("--lamp takes 3 numbers: x,y,z"));
+    options.color.lamp_in_cam = Eigen::Vector3d(o.lamp[0], o.lamp[1], o.lamp[2]);
+  }
   if (o.lasers == "left") {
     options.use_laser[1] = false;
   } else if (o.lasers == "right") {
@@ -94,6 +107,16 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--dark-frame", o.dark_frame,
                   "8-bit image with the lasers off: the background of steps without a laser-off frame "
                   "(default: zero, when the scan has no laser-off frame at all)");
+  sub->add_option("--color", o.color,
+                  "views: each point's color from the natural frames where it is seen best, the lamp's shading "
+                  "divided out (pipeline/color.h); views-shaded: the same without dividing the shading; step: "
+                  "the natural frame of the point's own step")
+      ->capture_default_str();
+  sub->add_option("--lamp", o.lamp,
+                  "a calibrated lamp instead of the estimate: x,y,z in the camera frame, the direction to the lamp "
+                  "times its diffuse / ambient ratio (pipeline/color.h)")
+      ->delimiter(',')
+      ->expected(3);
   sub->callback([&context, exit_code] { *exit_code = RunProcess(o, context); });
 }
 

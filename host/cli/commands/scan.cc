@@ -1,7 +1,8 @@
 // rotoscan scan: Scan with the real scanner (or the simulated one): drive the board, capture frames, write
 // a scan (or calibration) bundle; with --live, extract and triangulate while scanning.
 //   rotoscan scan --device usb[:SERIAL]|sim|ciclop:/dev/ttyUSB0 --camera v4l2:/dev/video0|aravis[:ID]|virtual
-//                 --out BUNDLE [--calib calib.yaml] [--steps N] [--live [--cloud FILE]] [--timing ...] ...
+//                 --out BUNDLE [--calib calib.yaml] [--steps N] [--placement N] [--live [--cloud FILE]]
+//                 [--timing ...] ...
 // rotoscan devices: the boards and cameras this build can open, and those it finds attached.
 #include <chrono>
 #include <condition_variable>
@@ -35,6 +36,7 @@ struct ScanCommandOptions {
   std::string cloud;
   std::vector<std::string> backend_options;
   int steps = 200;
+  int placement = 0;
   double fps = 30.0;
   int64_t laser_exposure_us = 2000;
   int64_t natural_exposure_us = 20000;
@@ -131,6 +133,7 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
   }
   capture::OpenContext open;
   open.scene_path = o.scene;
+  open.placement = o.placement;
   open.options = o.backend_options;
   auto board = capture::OpenBoard(o.device, &open);
   if (!board.ok()) return ReportStatus(context, "scan", board.status());
@@ -151,6 +154,7 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
   auto& header = options.header;
   header.kind = *target == bundle::TargetKind::kNone ? bundle::BundleKind::kScan : bundle::BundleKind::kCalibration;
   header.created_by = "rotoscan scan";
+  header.placement = o.placement;
   header.camera.name = (*camera)->Description();
   if (rig) {
     header.camera.model = rig->camera;
@@ -268,6 +272,10 @@ void RegisterScan(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--target-cols", o->target_cols, "calibration board inner corners across")->check(CLI::Range(2, 100));
   sub->add_option("--target-rows", o->target_rows, "calibration board inner corners down")->check(CLI::Range(2, 100));
   sub->add_option("--target-square", o->target_square_mm, "calibration board square, mm")->check(CLI::Range(0.1, 1000.0));
+  sub->add_option("--placement", o->placement,
+                  "the object's placement on the table (0 the first; 1 e.g. on its side), recorded in the "
+                  "bundle for `rotoscan merge`; the virtual camera renders the scene's placement N")
+      ->check(CLI::Range(0, 255));
   sub->add_option("--scene", o->scene, "virtual camera: the scene (JSON, sim/scene.h); default a sphere");
   sub->add_option("--option", o->backend_options, "backend option key=value (repeatable), e.g. rolling=1");
   auto* overwrite = sub->add_flag("--overwrite", o->overwrite, "replace an existing or interrupted bundle");

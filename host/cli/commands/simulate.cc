@@ -1,6 +1,7 @@
 // rotoscan simulate: Render scan or calibration bundles on the virtual scanner (with ground truth).
 //   rotoscan simulate SCENE.json --out DIR [--kind scan|calib-object|checkerboard|table-checkerboard]
 //                    [--steps N] [--threads N] [--overwrite | --resume] [--no-truth] [--table-slip DEG]
+//                    [--placement N] [--step-deg DEG]
 #include <memory>
 #include <ostream>
 
@@ -21,6 +22,8 @@ struct SimulateCommandOptions {
   bool resume = false;
   bool no_truth = false;
   double table_slip_deg = 0.0;
+  int placement = 0;
+  double step_deg = 0.0;
 };
 
 int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
@@ -30,6 +33,11 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   if (!paths.ok()) return ReportStatus(context, "simulate", paths);
   auto scene = sim::LoadScene(options.scene);
   if (!scene.ok()) return ReportStatus(context, "simulate", scene.status());
+  if (options.step_deg > 0) {
+    // The table step of this render (the scene's table.step_deg otherwise), part of what --resume checks.
+    scene->rig.step_angle_rad = options.step_deg * 3.14159265358979323846 / 180.0;
+    scene->source += "|step_deg " + std::to_string(options.step_deg);
+  }
   sim::SimulateOptions sim_options;
   sim_options.out = options.out;
   sim_options.kind = *kind;
@@ -39,6 +47,7 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   sim_options.resume = options.resume;
   sim_options.truth = !options.no_truth;
   sim_options.table_slip_deg = options.table_slip_deg;
+  sim_options.placement = options.placement;
   const Status status = sim::Simulate(*scene, sim_options, context.progress);
   if (!status.ok()) return ReportStatus(context, "simulate", status);
   *context.out << "rotoscan simulate: wrote " << options.kind << " bundle " << options.out << "\n";
@@ -67,6 +76,14 @@ void RegisterSimulate(CLI::App& app, const Context& context, int* exit_code) {
                   "a table that slips: each true angle off the commanded one by up to this many degrees "
                   "(uniform; bundle.json keeps the commanded angle, truth/table_angles.csv the true one)")
       ->check(CLI::Range(0.0, 45.0));
+  sub->add_option("--step-deg", options->step_deg,
+                  "table step in degrees (default: the scene's table.step_deg, 0.3); e.g. 1.8 with --steps 200 "
+                  "for a whole turn")
+      ->check(CLI::Range(0.0, 360.0));
+  sub->add_option("--placement", options->placement,
+                  "scans: the object's placement on the table (the scene's 'placements', e.g. 1 = on its "
+                  "side); recorded in the bundle, its true pose in truth/placement.csv")
+      ->check(CLI::Range(0, 255));
   sub->callback([options, &context, exit_code] { *exit_code = RunSimulate(*options, context); });
 }
 

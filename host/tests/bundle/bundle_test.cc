@@ -455,5 +455,41 @@ TEST(BundleResumeTest, WriterWithoutFramesLeavesNothing) {
   EXPECT_FALSE(fs::exists(scratch / "empty"));
 }
 
+TEST(BundleTest, PlacementRoundTripsAndDefaultsToZero) {
+  BundleHeader header = SmallHeader();
+  header.placement = 2;
+  auto parsed = ParseBundleJson(BundleJson(header, {}), "test");
+  ASSERT_TRUE(parsed.ok()) << parsed.status().ToString();
+  EXPECT_EQ(parsed->header.placement, 2);
+  std::string old = BundleJson(header, {});
+  const size_t at = old.find("\"placement\"");
+  ASSERT_NE(at, std::string::npos);
+  old.erase(at, old.find('\n', at) - at + 1);  // a bundle written before placements existed
+  parsed = ParseBundleJson(old, "old");
+  ASSERT_TRUE(parsed.ok()) << parsed.status().ToString();
+  EXPECT_EQ(parsed->header.placement, 0);
+  std::string bad = BundleJson(header, {});
+  bad.replace(bad.find("\"placement\": 2"), 14, "\"placement\": 999");
+  EXPECT_EQ(ParseBundleJson(bad, "bad").status().code(), StatusCode::kCorruptData);
+}
+
+TEST(TruthTest, PlacementTruthRoundTrips) {
+  ScratchDir scratch;
+  PlacementTruth truth;
+  truth.placement = 1;
+  truth.table_from_reference = Eigen::Translation3d(1.5, -2.25, 17.0) *
+                               Eigen::AngleAxisd(1.2, Eigen::Vector3d(0.3, 1, 0.2).normalized());
+  const fs::path path = TruthPlacementPath(scratch.path());
+  ASSERT_TRUE(WritePlacementTruth(path, truth).ok());
+  auto read = ReadPlacementTruth(path);
+  ASSERT_TRUE(read.ok()) << read.status().ToString();
+  EXPECT_EQ(read->placement, 1);
+  EXPECT_THAT(read->table_from_reference.matrix(), EigenNear(truth.table_from_reference.matrix(), 1e-12));
+  ASSERT_TRUE(WriteFileAtomically(path, "# rotoscan placement 1\nplacement\n1,2,3\n").ok());
+  EXPECT_EQ(ReadPlacementTruth(path).status().code(), StatusCode::kCorruptData);
+  ASSERT_TRUE(WriteFileAtomically(path, "# rotoscan placement 1\nplacement\n1,2,0,0,0,1,0,0,0,1,0,0,0\n").ok());
+  EXPECT_EQ(ReadPlacementTruth(path).status().code(), StatusCode::kCorruptData);  // not a rotation
+}
+
 }  // namespace
 }  // namespace rotoscan::bundle

@@ -202,6 +202,29 @@ TEST_F(ScanCommandTest, CiclopBoardOnAPtyEndsInACloud) {
   std::printf("ciclop over a pty, --live: %zu points on the sphere, %.4f mm RMS\n%s", n, rms, out.c_str());
   EXPECT_GT(n, 100u);
   EXPECT_LT(rms, 0.1);
+// `scan --placement N` records the placement; the virtual camera films the scene's placement N, and a
+// placement the scene does not define is refused before anything is written.
+TEST_F(ScanCommandTest, PlacementIsRecordedAndRendered) {
+  const std::string scene = (dir_ / "placed.json").string();
+  std::ofstream(scene) << R"({"camera": {"width": 256, "height": 192, "hfov_deg": 20},
+      "objects": [{"type": "box", "size_mm": [40, 20, 10]}],
+      "placements": [{}, {"rotation_deg": [90, 0, 0]}]})";
+  std::string out, err;
+  const std::string bundle = (dir_ / "side").string();
+  ASSERT_EQ(RunCli({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene, "--out", bundle, "--steps",
+                    "4", "--placement", "1"},
+                   &out, &err),
+            0)
+      << err;
+  std::ifstream json(fs::path(bundle) / "bundle.json");
+  const std::string text((std::istreambuf_iterator<char>(json)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("\"placement\": 1"), std::string::npos);
+  EXPECT_EQ(RunCli({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene, "--out",
+                    (dir_ / "nope").string(), "--steps", "4", "--placement", "2"},
+                   nullptr, &err),
+            1);
+  EXPECT_NE(err.find("placement 2 is not defined"), std::string::npos) << err;
+  EXPECT_FALSE(fs::exists(dir_ / "nope"));
 }
 
 TEST_F(ScanCommandTest, BadInputIsAClearError) {

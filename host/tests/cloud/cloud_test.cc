@@ -183,5 +183,43 @@ TEST(MergeTest, MergeLeavesOneLaserPerVoxel) {
   EXPECT_THROW(MergeLasers(cloud, bad, nullptr), PreconditionError);
 }
 
+// Merged clouds of several placements carry `placement` per point; single scans keep the old layout.
+TEST(PlyTest, PlacementPropertyRoundTripsAndIsOnlyWrittenWhenUsed) {
+  PointCloud cloud = RandomCloud(50, 5);
+  EXPECT_EQ(EncodePly(cloud).find("placement"), std::string::npos);
+  for (size_t i = 0; i < cloud.size(); ++i) cloud.points[i].placement = static_cast<uint8_t>(i % 3);
+  const std::string bytes = EncodePly(cloud);
+  EXPECT_NE(bytes.find("property uchar placement\nend_header"), std::string::npos);
+  auto read = DecodePly(bytes, "placements");
+  ASSERT_TRUE(read.ok()) << read.status().ToString();
+  ASSERT_EQ(read->size(), cloud.size());
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    EXPECT_EQ(read->points[i].placement, cloud.points[i].placement);
+    EXPECT_EQ(read->points[i].quality, cloud.points[i].quality);
+  }
+}
+
+TEST(MergeTest, DisagreementBetweenAnyTwoSetsOfPoints) {
+  // Two parallel planes 0.1 mm apart, told apart by index sets (as two placements are).
+  PointCloud cloud;
+  std::vector<uint32_t> a, b;
+  for (int i = 0; i < 40; ++i) {
+    for (int j = 0; j < 40; ++j) {
+      CloudPoint p;
+      p.position_in_table = Eigen::Vector3f(0.25f * i, 0.25f * j, 0.f);
+      p.normal = Eigen::Vector3f::UnitZ();
+      a.push_back(static_cast<uint32_t>(cloud.size()));
+      cloud.points.push_back(p);
+      p.position_in_table.z() = 0.1f;
+      b.push_back(static_cast<uint32_t>(cloud.size()));
+      cloud.points.push_back(p);
+    }
+  }
+  const LaserDisagreement d = MeasureDisagreement(cloud, a, b, 1.0);
+  EXPECT_EQ(d.pairs, a.size());
+  EXPECT_NEAR(d.mean_signed_mm, 0.1, 1e-6);
+  EXPECT_NEAR(d.median_abs_mm, 0.1, 1e-6);
+}
+
 }  // namespace
 }  // namespace rotoscan::cloud

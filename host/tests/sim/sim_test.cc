@@ -574,5 +574,52 @@ TEST(SimulateTest, InterruptedScanResumesToTheSameBundle) {
   }
 }
 
+// Placements: the objects turned as one body, stood on the table, centred on the axis; the true pose is
+// what moves the first placement's surface onto the second's, and the bundle records both.
+TEST(SimulateTest, PlacementsStandTheObjectOnTheTableAndRecordTheTruth) {
+  auto scene = ParseScene(R"({"camera": {"width": 64, "height": 48, "hfov_deg": 20, "noise": false},
+      "objects": [{"type": "box", "size_mm": [40, 20, 10]}],
+      "placements": [{}, {"rotation_deg": [90, 0, 0], "position_mm": [3, 0, 0]}]})",
+                          DataPath("."), "placements");
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  Eigen::Isometry3d t0, t1;
+  auto p0 = PlaceScene(*scene, 0, &t0);
+  auto p1 = PlaceScene(*scene, 1, &t1);
+  ASSERT_TRUE(p0.ok() && p1.ok()) << p1.status().ToString();
+  EXPECT_EQ(PlaceScene(*scene, 2, nullptr).status().code(), StatusCode::kInvalidArgument);
+  const bundle::TruthMesh m0 = (*Renderer::Create(*p0))->ObjectMesh();
+  const bundle::TruthMesh m1 = (*Renderer::Create(*p1))->ObjectMesh();
+  Eigen::Vector3f lo = m1.vertices[0], hi = m1.vertices[0];
+  for (const Eigen::Vector3f& v : m1.vertices) lo = lo.cwiseMin(v), hi = hi.cwiseMax(v);
+  EXPECT_NEAR(lo.z(), 0.0, 1e-5);        // on the table
+  EXPECT_NEAR(hi.z(), 20.0, 1e-4);       // on its 40 x 10 side: 20 mm tall
+  EXPECT_NEAR(lo.x() + hi.x(), 6.0, 1e-4);  // centred on the axis, then moved 3 mm
+  ASSERT_EQ(m0.vertices.size(), m1.vertices.size());
+  const Eigen::Isometry3d one_from_zero = t1 * t0.inverse();
+  for (size_t i = 0; i < m0.vertices.size(); ++i) {
+    EXPECT_LT(((one_from_zero * m0.vertices[i].cast<double>()).cast<float>() - m1.vertices[i]).norm(), 1e-4);
+  }
+  ScratchDir scratch;
+  SimulateOptions options;
+  options.out = scratch / "side";
+  options.steps = 2;
+  options.placement = 1;
+  ASSERT_TRUE(Simulate(*scene, options, nullptr).ok());
+  auto b = bundle::ReadBundle(scratch / "side");
+  ASSERT_TRUE(b.ok()) << b.status().ToString();
+  EXPECT_EQ(b->header.placement, 1);
+  auto truth = bundle::ReadPlacementTruth(bundle::TruthPlacementPath(scratch / "side"));
+  ASSERT_TRUE(truth.ok()) << truth.status().ToString();
+  EXPECT_THAT(truth->table_from_reference.matrix(), rotoscan::testing::EigenNear(t1.matrix(), 1e-9));
+  options.out = scratch / "nope";
+  options.placement = 5;
+  EXPECT_EQ(Simulate(*scene, options, nullptr).code(), StatusCode::kInvalidArgument);
+  EXPECT_FALSE(std::filesystem::exists(scratch / "nope"));
+  // Bad lists name the field.
+  auto bad = ParseScene(R"({"placements": [{"rotation": [1, 2, 3]}]})", DataPath("."), "bad");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("placements[0]"), std::string::npos) << bad.status().ToString();
+}
+
 }  // namespace
 }  // namespace rotoscan::sim

@@ -157,6 +157,7 @@ Status ValidateHeader(const BundleHeader& header) {
   if (!(header.table_step_rad >= 0.0) || !std::isfinite(header.table_step_rad)) {
     return InvalidArgumentError("table_step_deg must be a finite number >= 0");
   }
+  if (header.placement < 0 || header.placement > 255) return InvalidArgumentError("placement must be 0..255");
   return Status::Ok();
 }
 
@@ -262,6 +263,7 @@ std::string BundleJson(const BundleHeader& header, const std::vector<FrameRecord
                {"created_by", header.created_by},
                {"camera", camera},
                {"table_step_deg", geometry::RadToDeg(header.table_step_rad)},
+               {"placement", header.placement},
                {"device",
                 {{"name", header.device.name},
                  {"serial", header.device.serial},
@@ -314,6 +316,7 @@ Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& 
   if (step_deg < 0.0 || step_deg > 360.0)
     return fail(CorruptDataError("field 'table_step_deg' must be in [0, 360]"));
   h.table_step_rad = geometry::DegToRad(step_deg);
+  if (Status s = top.Int("placement", 0, 255, &h.placement, false); !s.ok()) return fail(s);
 
   // camera
   if (!root.contains("camera")) return fail(CorruptDataError("missing field 'camera'"));

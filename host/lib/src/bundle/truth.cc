@@ -400,4 +400,39 @@ Result<std::vector<TableAngle>> ReadTableAngles(const fs::path& path) {
   return angles;
 }
 
+Status WritePlacementTruth(const fs::path& path, const PlacementTruth& placement) {
+  std::string out =
+      "# rotoscan placement 1 (table_from_reference, mm)\nplacement,r00,r01,r02,r10,r11,r12,r20,r21,r22,tx,ty,"
+      "tz\n" +
+      std::to_string(placement.placement);
+  const Eigen::Matrix3d r = placement.table_from_reference.linear();
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) out += "," + FormatDouble(r(i, j));
+  }
+  for (int k = 0; k < 3; ++k) out += "," + FormatDouble(placement.table_from_reference.translation()[k]);
+  out += "\n";
+  std::error_code ec;
+  fs::create_directories(path.parent_path(), ec);
+  return WriteFileAtomically(path, out);
+}
+
+Result<PlacementTruth> ReadPlacementTruth(const fs::path& path) {
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<std::string> lines, ReadLines(path, "# rotoscan placement 1"));
+  double v[13];
+  if (lines.size() != 1 || !ParseNumbers(lines[0], 13, v) || v[0] < 0 || v[0] > 255 || v[0] != std::floor(v[0]) ||
+      std::abs(v[10]) > 1e6 || std::abs(v[11]) > 1e6 || std::abs(v[12]) > 1e6) {
+    return CorruptDataError(path.string() + ": must hold one line of 13 numbers (placement,r00..r22,tx,ty,tz)");
+  }
+  Eigen::Matrix3d r;
+  r << v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9];
+  if ((r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 || r.determinant() < 0) {
+    return CorruptDataError(path.string() + ": not a rotation");
+  }
+  PlacementTruth p;
+  p.placement = static_cast<int>(v[0]);
+  p.table_from_reference.linear() = r;
+  p.table_from_reference.translation() = Eigen::Vector3d(v[10], v[11], v[12]);
+  return p;
+}
+
 }  // namespace rotoscan::bundle

@@ -306,6 +306,7 @@ Result<std::unique_ptr<Camera>> OpenVirtualCamera(const std::string& argument, c
   } else {
     ROTOSCAN_ASSIGN_OR_RETURN(scene, sim::LoadScene(context.scene_path));
   }
+  ROTOSCAN_ASSIGN_OR_RETURN(scene, sim::PlaceScene(scene, context.placement, nullptr));
   ROTOSCAN_ASSIGN_OR_RETURN(auto renderer, sim::Renderer::Create(scene));
   return std::unique_ptr<Camera>(std::make_unique<VirtualCamera>(
       std::move(renderer), context.clock, truth, rolling != 0, 0.8, std::llround(readout_ms * 1000),

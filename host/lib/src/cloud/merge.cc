@@ -72,6 +72,12 @@ LaserDisagreement MeasureLaserDisagreement(const PointCloud& cloud, double overl
   ROTOSCAN_CHECK(overlap_radius_mm > 0);
   std::vector<uint32_t> left, right;
   SplitByLaser(cloud, &left, &right);
+  return MeasureDisagreement(cloud, left, right, overlap_radius_mm);
+}
+
+LaserDisagreement MeasureDisagreement(const PointCloud& cloud, const std::vector<uint32_t>& left,
+                                      const std::vector<uint32_t>& right, double overlap_radius_mm) {
+  ROTOSCAN_CHECK(overlap_radius_mm > 0);
   LaserDisagreement result;
   if (left.empty() || right.empty()) return result;
   const CellIndex index(cloud, right, overlap_radius_mm);

@@ -118,7 +118,12 @@ std::string EncodePly(const PointCloud& cloud) {
       "\nproperty float x\nproperty float y\nproperty float z\n"
       "property float nx\nproperty float ny\nproperty float nz\n"
       "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-      "property uchar laser\nproperty int step\nproperty float quality\nend_header\n";
+      "property uchar laser\nproperty int step\nproperty float quality\n";
+  // The placement (pipeline/placements.h) only in clouds that hold more than the first one.
+  const bool placements = std::any_of(cloud.points.begin(), cloud.points.end(),
+                                      [](const CloudPoint& p) { return p.placement != 0; });
+  if (placements) out += "property uchar placement\n";
+  out += "end_header\n";
   for (const CloudPoint& p : cloud.points) {
     for (int i = 0; i < 3; ++i) PutFloat(&out, p.position_in_table[i]);
     for (int i = 0; i < 3; ++i) PutFloat(&out, p.normal[i]);
@@ -126,6 +131,7 @@ std::string EncodePly(const PointCloud& cloud) {
     out.push_back(static_cast<char>(p.laser));
     PutU32(&out, static_cast<uint32_t>(p.step));
     PutFloat(&out, p.quality);
+    if (placements) out.push_back(static_cast<char>(p.placement));
   }
   return out;
 }
@@ -251,16 +257,16 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
     }
   }
   if (vertex == nullptr) return corrupt("no vertex element");
-  int index[12];
-  const char* names[12] = {"x",   "y",     "z",    "nx",    "ny",   "nz",
-                           "red", "green", "blue", "laser", "step", "quality"};
-  for (int k = 0; k < 12; ++k) index[k] = -1;
+  int index[13];
+  const char* names[13] = {"x",   "y",     "z",    "nx",    "ny",   "nz",     "red",
+                           "green", "blue", "laser", "step", "quality", "placement"};
+  for (int k = 0; k < 13; ++k) index[k] = -1;
   uint64_t stride = 0;
   for (size_t i = 0; i < vertex->properties.size(); ++i) {
     const Property& p = vertex->properties[i];
     if (p.is_list) return corrupt("list property '" + p.name + "' in the vertex element is not supported");
     stride += static_cast<uint64_t>(p.bytes);
-    for (int k = 0; k < 12; ++k) {
+    for (int k = 0; k < 13; ++k) {
       if (p.name == names[k]) index[k] = static_cast<int>(i);
     }
   }
@@ -307,6 +313,7 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
     p.laser = static_cast<uint8_t>(Finite(get(9, 0), 0.0, 255.0));
     p.step = static_cast<int32_t>(Finite(get(10, 0), -2147483648.0, 2147483647.0));
     p.quality = static_cast<float>(Finite(get(11, 0), -1e30, 1e30));
+    p.placement = static_cast<uint8_t>(Finite(get(12, 0), 0.0, 255.0));
   }
   if (have_camera && have_step) {
     scan.known = true;

@@ -12,6 +12,7 @@
 #include "rotoscan/pipeline/evaluate.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -271,6 +272,27 @@ class PointGrid {
     }
   }
 
+  // The distance from p to the nearest point within one cell for which `other(point)` holds (inf: none).
+  template <typename Other>
+  float NearestWhere(const Eigen::Vector3f& p, Other other) const {
+    const Eigen::Vector3i c = Cell(p);
+    float best = std::numeric_limits<float>::infinity();
+    for (int dx = -1; dx <= 1; ++dx) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dz = -1; dz <= 1; ++dz) {
+          auto it = ranges_.find(Key(c + Eigen::Vector3i(dx, dy, dz)));
+          if (it == ranges_.end()) continue;
+          for (size_t k = it->second.first; k < it->second.second; ++k) {
+            const cloud::CloudPoint& q = cloud_.points[order_[k]];
+            if (!other(q)) continue;
+            best = std::min(best, (q.position_in_table - p).squaredNorm());
+          }
+        }
+      }
+    }
+    return std::sqrt(best);
+  }
+
   // Bit 0: a left-laser point within `radius` of p; bit 1: a right-laser point; bit 2: any point.
   int Near(const Eigen::Vector3f& p, double radius) const {
     const Eigen::Vector3i c = Cell(p);
@@ -338,6 +360,37 @@ Status EvaluateOptions::Check() const {
   if (max_samples == 0) return InvalidArgumentError("max_samples must be > 0");
   if (threads < 0) return InvalidArgumentError("threads must be >= 0");
   return Status::Ok();
+}
+
+// The scan's own point spacing across its laser lines: for a sample of points, the distance to the nearest
+// point of another line (another step or laser) of the same placement within kSpacingCellMm; the 95th
+// percentile, for the coarsest placement of a merged cloud (where only it saw the surface, that is its
+// spacing). 0 when fewer than half the sampled points have another line that close (not a scan of laser
+// lines).
+constexpr double kSpacingCellMm = 4.0;
+double LineSpacingP95(const cloud::PointCloud& all) {
+  std::array<cloud::PointCloud, 256> parts;
+  for (const cloud::CloudPoint& p : all.points) parts[p.placement].points.push_back(p);
+  double widest = 0;
+  for (const cloud::PointCloud& cloud : parts) {
+    if (cloud.size() < 100) continue;
+    const PointGrid grid(cloud, kSpacingCellMm);
+    const size_t stride = std::max<size_t>(1, cloud.size() / 20000);
+    std::vector<float> gaps;
+    size_t sampled = 0;
+    for (size_t i = 0; i < cloud.size(); i += stride, ++sampled) {
+      const cloud::CloudPoint& p = cloud.points[i];
+      const float d = grid.NearestWhere(p.position_in_table, [&](const cloud::CloudPoint& q) {
+        return q.step != p.step || q.laser != p.laser;
+      });
+      if (std::isfinite(d)) gaps.push_back(d);
+    }
+    if (gaps.size() < 10 || 2 * gaps.size() < sampled) continue;
+    const size_t at = static_cast<size_t>(0.95 * static_cast<double>(gaps.size() - 1));
+    std::nth_element(gaps.begin(), gaps.begin() + static_cast<std::ptrdiff_t>(at), gaps.end());
+    widest = std::max(widest, static_cast<double>(gaps[at]));
+  }
+  return widest;
 }
 
 Result<EvaluationReport> EvaluateCloud(const cloud::PointCloud& cloud, const TruthSurface& truth,
@@ -448,28 +501,46 @@ Result<EvaluationReport> EvaluateCloud(const cloud::PointCloud& cloud, const Tru
   ROTOSCAN_RETURN_IF_ERROR(occluder.Build(mesh));
   ROTOSCAN_RETURN_IF_ERROR(MarkVisible(occluder, views, options, samples, progress));
   cov.radius_mm = options.coverage_radius_mm;
+  cov.radius_rule = "given";
   if (cov.radius_mm == 0) {
-    double r_max = 0;
-    for (const Eigen::Vector3f& v : mesh.vertices)
-      r_max = std::max(r_max, std::hypot(static_cast<double>(v.x()), static_cast<double>(v.y())));
-    cov.radius_mm = std::max(0.5, 0.6 * r_max * views.step_rad);
+    cov.line_spacing_p95_mm = LineSpacingP95(cloud);
+    if (cov.line_spacing_p95_mm > 0) {
+      cov.radius_mm = std::max(0.5, 0.6 * cov.line_spacing_p95_mm);
+      char rule[160];
+      std::snprintf(rule, sizeof(rule),
+                    "the scan's point spacing: 0.6 x %.3f mm (95th percentile of the gap "
+                    "between laser lines), at least 0.5 mm",
+                    cov.line_spacing_p95_mm);
+      cov.radius_rule = rule;
+    } else {
+      double r_max = 0;
+      for (const Eigen::Vector3f& v : mesh.vertices)
+        r_max = std::max(r_max, std::hypot(static_cast<double>(v.x()), static_cast<double>(v.y())));
+      cov.radius_mm = std::max(0.5, 0.6 * r_max * views.step_rad);
+      cov.radius_rule =
+          "the table step: 0.6 x the largest radius x the step, at least 0.5 mm (no line spacing)";
+    }
   }
   {
     ProgressScope scope(progress, "coverage", samples.size());
     const PointGrid grid(cloud, cov.radius_mm);
-    std::atomic<size_t> visible{0}, left{0}, right{0}, any{0};
+    std::atomic<size_t> visible{0}, left{0}, right{0}, any{0}, whole{0};
     ParallelFor(samples.size(), threads, [&](size_t begin, size_t end) {
-      size_t v = 0, l = 0, r = 0, a = 0;
+      size_t v = 0, l = 0, r = 0, a = 0, w = 0;
       for (size_t i = begin; i < end; ++i) {
+        const int near = grid.Near(samples[i].point, cov.radius_mm);
+        w += (near & 4) != 0;
         if (!samples[i].visible) continue;
         ++v;
-        const int near = grid.Near(samples[i].point, cov.radius_mm);
         l += (near & 1) != 0;
         r += (near & 2) != 0;
         a += (near & 4) != 0;
       }
-      visible += v, left += l, right += r, any += a;
+      visible += v, left += l, right += r, any += a, whole += w;
     });
+    cov.whole_samples = samples.size();
+    cov.whole_area_mm2 = static_cast<double>(samples.size()) * area_per_sample;
+    if (!samples.empty()) cov.whole = static_cast<double>(whole.load()) / static_cast<double>(samples.size());
     scope.Advance(samples.size());
     cov.visible_samples = visible;
     cov.visible_area_mm2 = static_cast<double>(visible) * area_per_sample;
@@ -494,7 +565,12 @@ Result<TruthSurface> LoadTruthSurface(const std::filesystem::path& bundle_dir,
   ROTOSCAN_ASSIGN_OR_RETURN(truth.mesh, bundle::ReadPlyMesh(mesh_path));
   if (scene_path.empty()) return truth;
 
-  ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene scene, sim::LoadScene(scene_path));
+  ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene given, sim::LoadScene(scene_path));
+  // The scene in the bundle's placement (sim::PlaceScene): where its objects were when it was rendered.
+  int placement = 0;
+  if (auto header = bundle::ReadBundle(bundle_dir, {false}); header.ok())
+    placement = header->header.placement;
+  ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene scene, sim::PlaceScene(given, placement, nullptr));
   auto meshes = std::make_shared<std::vector<sim::internal::Mesh>>();
   std::vector<int> first_face;  // of each object in the concatenated mesh
   size_t vertices = 0, faces = 0;
@@ -570,12 +646,8 @@ Result<EvaluationViews> LoadEvaluationViews(const std::filesystem::path& bundle_
 std::string EvaluationJson(const EvaluationReport& r) {
   using json = nlohmann::json;
   auto distance = [](const DistanceStats& d) {
-    return json{{"points", d.points},
-                {"rms_mm", d.rms_mm},
-                {"mean_mm", d.mean_mm},
-                {"median_mm", d.median_mm},
-                {"p95_mm", d.p95_mm},
-                {"max_mm", d.max_mm}};
+    return json{{"points", d.points},       {"rms_mm", d.rms_mm}, {"mean_mm", d.mean_mm},
+                {"median_mm", d.median_mm}, {"p95_mm", d.p95_mm}, {"max_mm", d.max_mm}};
   };
   json j;
   j["format"] = "rotoscan evaluation 1";
@@ -585,6 +657,11 @@ std::string EvaluationJson(const EvaluationReport& r) {
   j["distance_right"] = distance(r.distance_right);
   const CoverageStats& c = r.coverage;
   j["coverage"] = {{"radius_mm", c.radius_mm},
+                   {"radius_rule", c.radius_rule},
+                   {"line_spacing_p95_mm", c.line_spacing_p95_mm},
+                   {"whole_samples", c.whole_samples},
+                   {"whole_area_mm2", c.whole_area_mm2},
+                   {"whole", c.whole},
                    {"surface_samples", c.surface_samples},
                    {"visible_samples", c.visible_samples},
                    {"visible_area_mm2", c.visible_area_mm2},
@@ -616,13 +693,17 @@ std::string EvaluationSummary(const EvaluationReport& r) {
       "distance: %zu points (left %zu, right %zu): rms=%.4f mm mean=%.4f mm median=%.4f mm p95=%.4f mm "
       "max=%.4f mm\n",
       r.points, r.left_points, r.right_points, r.distance.rms_mm, r.distance.mean_mm, r.distance.median_mm,
-      r.distance.p95_mm,
-      r.distance.max_mm);
+      r.distance.p95_mm, r.distance.max_mm);
   out += line;
   const CoverageStats& c = r.coverage;
   std::snprintf(line, sizeof(line),
                 "coverage: radius %.2f mm, %zu visible samples (%.0f mm^2): left=%.4f right=%.4f both=%.4f\n",
                 c.radius_mm, c.visible_samples, c.visible_area_mm2, c.left, c.right, c.both);
+  out += line;
+  std::snprintf(line, sizeof(line),
+                "coverage of the whole true surface (every view, every placement): %.4f of %zu samples (%.0f "
+                "mm^2), radius %.2f mm from %s\n",
+                c.whole, c.whole_samples, c.whole_area_mm2, c.radius_mm, c.radius_rule.c_str());
   out += line;
   if (r.has_color) {
     const ColorStats& k = r.color;

@@ -107,9 +107,37 @@ Result<StepFrames> BundleStepSource::Load(int index) const {
   return frames;
 }
 
+Result<cv::Mat> StepSource::LoadNatural(int index, double* table_angle_rad) const {
+  ROTOSCAN_ASSIGN_OR_RETURN(StepFrames frames, Load(index));
+  if (table_angle_rad != nullptr) *table_angle_rad = frames.table_angle_rad;
+  return frames.natural;
+}
+
+Result<cv::Mat> BundleStepSource::LoadNatural(int index, double* table_angle_rad) const {
+  ROTOSCAN_CHECK(index >= 0 && index < StepCount());
+  const int step = steps_[static_cast<size_t>(index)];
+  const int natural = bundle_.FindFrame(step, bundle::LaserState::kNatural);
+  if (natural < 0) return cv::Mat();
+  if (table_angle_rad != nullptr) {
+    // The laser frames' angle, as Load() takes it (the natural frame's when the step has no other).
+    *table_angle_rad = bundle_.frames[static_cast<size_t>(natural)].table_angle_rad;
+    for (bundle::LaserState state : {bundle::LaserState::kLeft, bundle::LaserState::kRight, bundle::LaserState::kOff}) {
+      const int i = bundle_.FindFrame(step, state);
+      if (i >= 0) {
+        *table_angle_rad = bundle_.frames[static_cast<size_t>(i)].table_angle_rad;
+        break;
+      }
+    }
+  }
+  auto image = bundle::ReadFrame(bundle_, bundle_.frames[static_cast<size_t>(natural)]);
+  if (!image.ok()) return image.status().WithContext(bundle_.frames[static_cast<size_t>(natural)].file);
+  return std::move(*image);
+}
+
 Status ProcessOptions::Check() const {
   ROTOSCAN_RETURN_IF_ERROR(extract.Check());
   ROTOSCAN_RETURN_IF_ERROR(merge_options.Check());
+  ROTOSCAN_RETURN_IF_ERROR(color.Check());
   if (threads < 0 || threads > 256) return InvalidArgumentError("process: threads must be in [0, 256]");
   if (!use_laser[0] && !use_laser[1]) return InvalidArgumentError("process: no laser selected");
   if (!(max_neighbor_mm > 0)) return InvalidArgumentError("process: max_neighbor_mm must be > 0");
@@ -540,7 +568,15 @@ Result<ProcessResult> ProcessBundle(const std::filesystem::path& bundle_dir, con
                                 std::to_string(rig.camera.width) + "x" + std::to_string(rig.camera.height));
   }
   BundleStepSource source(std::move(*bundle));
-  return ProcessSteps(rig, source, options, progress);
+  auto result = ProcessSteps(rig, source, options, progress);
+  if (!result.ok()) return result;
+  const auto start = std::chrono::steady_clock::now();
+  ColorOptions color = options.color;
+  if (color.threads == 0) color.threads = options.threads;
+  ROTOSCAN_RETURN_IF_ERROR(
+      ColorFromViews(rig, source, color, &result->cloud, &result->summary.color, progress));
+  result->summary.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
 }
 
 std::string FormatSummary(const ProcessSummary& s) {
@@ -564,6 +600,7 @@ std::string FormatSummary(const ProcessSummary& s) {
   out << "merge: kept left " << s.merge.left_out << " of " << s.merge.left_in << ", right "
       << s.merge.right_out << " of " << s.merge.right_in << " (" << s.merge.shared_voxels
       << " shared voxels) -> " << s.points_out << " points\n";
+  out << FormatColorSummary(s.color);
   out.precision(2);
   out << "time " << s.seconds << " s\n";
   for (const std::string& w : s.warnings) out << "warning: " << w << "\n";

@@ -365,7 +365,7 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
     if (!root.is_object()) return InvalidArgumentError("the scene must be a JSON object");
     Reader top(root, "");
     RETURN_IF(top.OnlyKeys(
-        {"preset", "seed", "steps", "camera", "table", "lasers", "light", "objects", "comment"}));
+        {"preset", "seed", "steps", "camera", "table", "lasers", "light", "objects", "placements", "comment"}));
     std::string preset = "machine_vision";
     RETURN_IF(top.String("preset", &preset));
     ROTOSCAN_ASSIGN_OR_RETURN(Scene scene, SceneDefaults(preset));
@@ -442,6 +442,22 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
         ObjectSpec o;
         RETURN_IF(ParseObject((*objects)[i], i, base_dir, &o));
         scene.objects.push_back(o);
+      }
+    }
+    if (const json* placements = top.Get("placements")) {
+      if (!placements->is_array() || placements->empty() || placements->size() > 256) {
+        return InvalidArgumentError("field 'placements' must be an array of 1 to 256 objects");
+      }
+      for (std::size_t i = 0; i < placements->size(); ++i) {
+        const json& entry = (*placements)[i];
+        const std::string name = "placements[" + std::to_string(i) + "]";
+        if (!entry.is_object()) return InvalidArgumentError("field '" + name + "' must be an object");
+        Reader r(entry, name);
+        RETURN_IF(r.OnlyKeys({"rotation_deg", "position_mm", "comment"}));
+        Scene::Placement placement;
+        RETURN_IF(r.Vector("rotation_deg", -360.0, 360.0, &placement.rotation_deg));
+        RETURN_IF(r.Vector("position_mm", -1e3, 1e3, &placement.position_mm));
+        scene.placements.push_back(placement);
       }
     }
     RETURN_IF(scene.rig.Validate().WithContext("rig"));

@@ -108,6 +108,13 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   if (options.table_slip_deg > 0.0 && kind == SimulateKind::kCheckerboard) {
     return InvalidArgumentError("table slip needs a table: the hand-held checkerboard kind has none");
   }
+  if (options.placement != 0 && kind != SimulateKind::kScan) {
+    return InvalidArgumentError("--placement applies to scans only");
+  }
+  Eigen::Isometry3d table_from_reference = Eigen::Isometry3d::Identity();
+  if (kind == SimulateKind::kScan) {
+    ROTOSCAN_ASSIGN_OR_RETURN(scene, PlaceScene(input_scene, options.placement, &table_from_reference));
+  }
   if (steps == 0) {
     steps = kind == SimulateKind::kScan                ? scene.steps
             : kind == SimulateKind::kCalibrationObject ? 1
@@ -172,6 +179,7 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   const double slip_rad = geometry::DegToRad(options.table_slip_deg);
   for (Job& job : jobs) job.true_angle = job.angle + TableSlip(scene.seed, job.pose, job.step, slip_rad);
   header.table_step_rad = scene.rig.step_angle_rad;
+  header.placement = options.placement;
   header.camera.name = "virtual " + scene.preset + " " + std::to_string(scene.rig.camera.width) + "x" +
                        std::to_string(scene.rig.camera.height);
   header.camera.model = scene.rig.camera;  // nominal = true here; calibration must estimate its own
@@ -217,7 +225,8 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   // count or truth setting is refused (FNV-1a 64 of them).
   uint64_t hash = 14695981039346656037ull;
   const std::string what = scene.source + "|kind " + std::to_string(static_cast<int>(kind)) + "|steps " +
-                           std::to_string(steps) + "|truth " + (options.truth ? "1" : "0");
+                           std::to_string(steps) + "|truth " + (options.truth ? "1" : "0") +
+                           (options.placement != 0 ? "|placement " + std::to_string(options.placement) : "");
   for (const char c : what) hash = (hash ^ static_cast<unsigned char>(c)) * 1099511628211ull;
   char hash_text[17];
   std::snprintf(hash_text, sizeof(hash_text), "%016llx", static_cast<unsigned long long>(hash));
@@ -229,6 +238,8 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
     if (kind == SimulateKind::kScan) {
       ROTOSCAN_RETURN_IF_ERROR(
           bundle::WritePlyMesh(work / "truth" / "object.ply", renderers[0]->ObjectMesh()));
+      ROTOSCAN_RETURN_IF_ERROR(bundle::WritePlacementTruth(bundle::TruthPlacementPath(work),
+                                                           {options.placement, table_from_reference}));
     } else {
       ROTOSCAN_RETURN_IF_ERROR(bundle::WriteTargetPoses(work / "truth" / "poses.csv", poses));
     }

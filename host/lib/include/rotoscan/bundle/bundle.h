@@ -17,6 +17,7 @@
 //                 "K": [fx, 0, cx, 0, fy, cy, 0, 0, 1], "distortion": [k1, k2, p1, p2, k3],
 //                 "laser_exposure_us": 2000, "natural_exposure_us": 20000, "gain_db": 0 },
 //     "table_step_deg": 0.3,
+//     "placement": 0,                                   (optional, default 0: the object's placement)
 //     "device": { "name": "...", "serial": "...", "firmware_version": "..." },
 //     "target": { "kind": "none" | "calibration_object" | "checkerboard" | "table_checkerboard",
 //                 "cols": 9, "rows": 6, "square_mm": 10, "description": "...",
@@ -123,6 +124,9 @@ struct BundleHeader {
   double table_step_rad = 0.0;  // commanded turn per table step (0: unknown)
   DeviceInfo device;
   TargetInfo target;  // calibration bundles
+  // Which placement of the object on the table this scan is (0 the first; 1 e.g. the object on its side):
+  // scans of several placements are aligned by `rotoscan merge` (pipeline/placements.h). In [0, 255].
+  int placement = 0;
 };
 
 struct Bundle {

@@ -21,6 +21,12 @@
 //                           angle (the one in bundle.json) and the true one of every (pose, step); they
 //                           differ when the virtual table slips (sim/simulate.h):
 //                             pose,step,commanded_deg,true_deg
+//   truth/placement.csv     scans: where this placement put the object (bundle.h "placement"), as
+//                           table_from_reference: the reference frame is the table frame of placement 0,
+//                           so the true transform that aligns placement k's cloud onto placement 0's is
+//                           table_from_reference(0) * table_from_reference(k)^-1:
+//                             # rotoscan placement 1 (table_from_reference, mm)
+//                             placement,r00,r01,r02,r10,r11,r12,r20,r21,r22,tx,ty,tz
 #pragma once
 
 #include <array>
@@ -67,6 +73,11 @@ struct TableAngle {
   double true_rad = 0.0;       // the angle the table stood at (a slipping table)
 };
 
+struct PlacementTruth {
+  int placement = 0;
+  Eigen::Isometry3d table_from_reference = Eigen::Isometry3d::Identity();
+};
+
 // Binary little-endian PLY with vertex colors. The reader also accepts ASCII PLY and bounds all counts.
 Status WritePlyMesh(const std::filesystem::path& path, const TruthMesh& mesh);  // atomic
 Result<TruthMesh> ReadPlyMesh(const std::filesystem::path& path);
@@ -82,6 +93,9 @@ Result<std::vector<TargetPose>> ReadTargetPoses(const std::filesystem::path& pat
 Status WriteTableAngles(const std::filesystem::path& path, const std::vector<TableAngle>& angles);  // atomic
 Result<std::vector<TableAngle>> ReadTableAngles(const std::filesystem::path& path);
 
+Status WritePlacementTruth(const std::filesystem::path& path, const PlacementTruth& placement);  // atomic
+Result<PlacementTruth> ReadPlacementTruth(const std::filesystem::path& path);
+
 // Convenience for a read bundle: the line truth of one frame / truth/rig.yaml path / truth/object.ply.
 Result<std::vector<LinePoint>> ReadLineTruth(const Bundle& bundle, const FrameRecord& frame);
 inline std::filesystem::path TruthRigPath(const std::filesystem::path& bundle_dir) {
@@ -92,6 +106,9 @@ inline std::filesystem::path TruthMeshPath(const std::filesystem::path& bundle_d
 }
 inline std::filesystem::path TruthPosesPath(const std::filesystem::path& bundle_dir) {
   return bundle_dir / "truth" / "poses.csv";
+}
+inline std::filesystem::path TruthPlacementPath(const std::filesystem::path& bundle_dir) {
+  return bundle_dir / "truth" / "placement.csv";
 }
 inline std::filesystem::path TruthTableAnglesPath(const std::filesystem::path& bundle_dir) {
   return bundle_dir / "truth" / "table_angles.csv";

@@ -43,6 +43,8 @@ struct OpenContext {
   Board* board = nullptr;
   // Virtual camera: the scene file (sim/scene.h JSON); empty = the built-in default scene.
   std::string scene_path;
+  // Virtual camera: the object's placement in the scene (sim::PlaceScene; 0 the scene as given).
+  int placement = 0;
   // Virtual camera: the simulated rig, when the board is not the one that knows it (tests).
   RigTruth* truth = nullptr;
   // Free-form "key=value" options for a backend ("rolling=1", "fps=30"), from the CLI.

@@ -1,7 +1,8 @@
 // The colored point cloud of a scan and its file, cloud.ply (DESIGN.md "Files"): binary little-endian
 // PLY, one vertex per point with x y z (float, mm, table frame), nx ny nz (float, unit, zero when
 // unknown), red green blue (uchar), laser (uchar: 0 left, 1 right), step (int: table step index) and
-// quality (float, 0..1). Two optional header comments say where the camera was (ScanGeometry):
+// quality (float, 0..1), and in merged clouds of several placements (pipeline/placements.h) placement
+// (uchar: the index of the scan the point came from; absent means 0). Two optional header comments say where the camera was (ScanGeometry):
 // `comment rotoscan camera_at_step0 X Y Z` (mm, table frame) and `comment rotoscan step_deg S`.
 //
 // The reader is hardened (STYLE.md §9): every count read from the file is bounded by the bytes that are
@@ -28,6 +29,7 @@ struct CloudPoint {
   uint8_t laser = 0;                                            // geometry::LaserId as a number
   int32_t step = 0;                                             // table step index
   float quality = 0;                                            // 0..1
+  uint8_t placement = 0;  // which placement's scan (pipeline/placements.h), 0 in a single scan
 };
 
 // Where the camera was when each point was seen: the table frame's z is the rotation axis, so the camera

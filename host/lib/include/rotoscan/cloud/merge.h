@@ -15,6 +15,8 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
+#include <vector>
 
 #include "rotoscan/cloud/cloud.h"
 
@@ -43,6 +45,11 @@ struct MergeReport {
 
 // Measures the disagreement of the laser-0 and laser-1 points of `cloud`.
 LaserDisagreement MeasureLaserDisagreement(const PointCloud& cloud, double overlap_radius_mm);
+
+// The same between any two sets of points of `cloud` (indices; e.g. two placements): `left` plays the
+// left laser (its normals), `right` the right laser.
+LaserDisagreement MeasureDisagreement(const PointCloud& cloud, const std::vector<uint32_t>& left,
+                                      const std::vector<uint32_t>& right, double overlap_radius_mm);
 
 // The merged cloud (points keep their laser id). `report` may be null. Options must pass Check().
 PointCloud MergeLasers(const PointCloud& cloud, const MergeOptions& options, MergeReport* report);

@@ -13,11 +13,17 @@
 // looks down at it, so it hides nothing above it).
 //
 // Coverage: the fraction of visible samples with a cloud point within `coverage_radius_mm`, for the points
-// of the left laser, of the right laser and of both. A scan samples the surface along laser lines one table
-// step apart, so the radius must bridge half the gap between lines: the automatic radius is
-// max(0.5 mm, 0.6 * r_max * step) with r_max the largest distance of the mesh from the table axis and step
-// the median angle between the bundle's table angles. For per-laser figures, evaluate a cloud processed
-// with --no-merge (the merge drops one laser's points where both saw the surface).
+// of the left laser, of the right laser and of both; and the fraction of the whole true surface (every
+// sample above the table clearance, visible from these views or not: what a merged cloud of several
+// placements covers). A scan samples the surface along laser lines one table step apart, so the radius must
+// bridge half the gap between lines, and no more, so that coverage measures holes and not sampling: the
+// automatic radius follows the scan's own point spacing, max(0.5 mm, 0.6 x the 95th percentile of the
+// distance from a point to the nearest point of another laser line (another step or laser) of its own
+// placement, for the coarsest placement of a merged cloud);
+// for a cloud without that information, max(0.5 mm, 0.6 * r_max * step) with r_max the largest distance of
+// the mesh from the table axis and step the median angle between the bundle's table angles. The report
+// says which rule gave the radius. For per-laser figures, evaluate a cloud processed with --no-merge (the
+// merge drops one laser's points where both saw the surface).
 //
 // Color: the true albedo (0..1) at the closest surface point of every point within `color_max_distance_mm`
 // of the surface, times 255, against the point's 8-bit color after one least-squares gain per channel
@@ -86,6 +92,13 @@ struct CoverageStats {
   size_t visible_samples = 0;  // the visible surface
   double visible_area_mm2 = 0;
   double left = 0, right = 0, both = 0;  // fractions of the visible samples
+  // The whole true surface (above the table clearance), seen or not from these views: what several
+  // placements together cover (pipeline/placements.h).
+  size_t whole_samples = 0;
+  double whole_area_mm2 = 0;
+  double whole = 0;                // fraction of all samples with a point within the radius
+  double line_spacing_p95_mm = 0;  // the scan's own spacing between laser lines (automatic radius), 0: none
+  std::string radius_rule;         // how the radius was chosen (for the report)
 };
 
 struct ColorStats {

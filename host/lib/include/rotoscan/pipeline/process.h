@@ -35,6 +35,7 @@
 #include "rotoscan/core/status.h"
 #include "rotoscan/geometry/rig.h"
 #include "rotoscan/laser/extract.h"
+#include "rotoscan/pipeline/color.h"
 
 namespace rotoscan::pipeline {
 
@@ -59,6 +60,9 @@ class StepSource {
   virtual int bit_depth() const { return 8; }
   // False when no step has a laser-off frame (a capture in the dark; see the file comment).
   virtual bool has_off_frames() const { return true; }
+  // The natural frame of step `index` alone (empty when the step has none) and the step's table angle
+  // (color.h reads many); by default through Load().
+  virtual Result<cv::Mat> LoadNatural(int index, double* table_angle_rad) const;
 };
 
 // Steps of a scan bundle (bundle/bundle.h), by step index.
@@ -67,6 +71,7 @@ class BundleStepSource : public StepSource {
   explicit BundleStepSource(bundle::Bundle bundle);
   int StepCount() const override { return static_cast<int>(steps_.size()); }
   Result<StepFrames> Load(int index) const override;
+  Result<cv::Mat> LoadNatural(int index, double* table_angle_rad) const override;
   bool bayer() const override { return bundle_.header.camera.bayer; }
   int bit_depth() const override { return bundle_.header.camera.bit_depth; }
   bool has_off_frames() const override { return has_off_frames_; }
@@ -89,6 +94,9 @@ struct ProcessOptions {
   // Background for steps without a laser-off frame (see the file comment): stored like the frames (same
   // size, type and bit depth); empty: zero when the source has no laser-off frame at all.
   cv::Mat dark_frame;
+  // ProcessBundle: each point's color from many natural frames, the lamp's shading divided out (color.h);
+  // color.enabled = false keeps the color of the point's own step.
+  ColorOptions color;
 
   Status Check() const;
 };
@@ -104,6 +112,7 @@ struct ProcessSummary {
   cloud::MergeReport merge;           // disagreement of the lasers and the merge counts
   laser::LineStats line_totals;       // summed over all laser frames (rows, found, rejections)
   std::vector<std::string> warnings;  // skipped steps and why (at most 20, then a count)
+  ColorSummary color;                 // ProcessBundle's color pass
   double seconds = 0.0;
 };
 
@@ -116,7 +125,8 @@ struct ProcessResult {
 Result<ProcessResult> ProcessSteps(const geometry::Rig& rig, const StepSource& source,
                                    const ProcessOptions& options, Progress* progress = nullptr);
 
-// Reads the bundle, checks it against the rig (image size) and processes it.
+// Reads the bundle, checks it against the rig (image size) and processes it, then colors the cloud from
+// the natural frames (options.color, color.h).
 Result<ProcessResult> ProcessBundle(const std::filesystem::path& bundle_dir, const geometry::Rig& rig,
                                     const ProcessOptions& options, Progress* progress = nullptr);
 

@@ -50,6 +50,11 @@
 //                    object to the rest of the simulator: `simulate --kind checkerboard` or
 //                    `table-checkerboard` render it at their poses, truth/poses.csv in that frame),
 //                  { "type": "calibration_object", "square_mm": 10, "size_mm": 60 } ]
+//     "placements": [ { "rotation_deg": [rx,ry,rz], "position_mm": [x,y,0], "comment": "..." }, ... ]
+//       the object's poses on the table for `simulate --placement N` / `scan --placement N` (placement 0 is
+//       entry 0, or the objects as given when there is no list): all objects together are turned by
+//       rotation_deg about the table axes (applied x, y, z), stood on the table (lowest point at z = 0) and
+//       centred on the axis, then moved by position_mm (PlaceScene).
 //     each object also takes "position_mm": [x,y,z] (table frame; meshes and built-ins stand on the
 //     table), "rotation_deg": [rx,ry,rz] (about the table axes, applied x, y, z) and "color": [r,g,b]
 //     (albedo 0..1; default light grey) }
@@ -167,6 +172,12 @@ struct Scene {
   double ambient_flicker = 0.0;
   double flicker_hz = 100.0;
   std::vector<ObjectSpec> objects;
+  // The object's placements on the table (JSON "placements"; empty: one, the objects as given).
+  struct Placement {
+    Eigen::Vector3d rotation_deg = Eigen::Vector3d::Zero();
+    Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();
+  };
+  std::vector<Placement> placements;
 };
 
 // The defaults of a preset ("machine_vision" or "webcam"); kInvalidArgument for another name.
@@ -176,6 +187,14 @@ Result<Scene> SceneDefaults(const std::string& preset);
 Result<Scene> ParseScene(const std::string& json_text, const std::filesystem::path& base_dir,
                          const std::string& source_name);
 Result<Scene> LoadScene(const std::filesystem::path& path);
+
+// The scene with its objects put in placement `placement` (Scene::placements): every object gets an
+// explicit pose (ObjectSpec::has_pose). `table_from_reference` (may be null) receives the rigid transform
+// from the reference frame (the table frame of the objects as given) to this placement's table frame: the
+// truth that aligning the scans of several placements must find (bundle/truth.h, truth/placement.csv).
+// Placement 0 of a scene without a list is the scene itself (identity). kInvalidArgument for a placement
+// the scene does not define; mesh files' errors as the renderer's.
+Result<Scene> PlaceScene(const Scene& scene, int placement, Eigen::Isometry3d* table_from_reference);
 
 // The inner corners of a checkerboard object (ChArUco included) in its target frame, row by row: the
 // index is OpenCV's ChArUco corner id. The truth that board detections are compared with.

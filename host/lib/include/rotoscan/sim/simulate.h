@@ -15,6 +15,9 @@
 // Calibration kinds take their target from the scene's objects when it has one of the right type, and
 // render with at least 2 x 2 supersampling (their checker patterns are also box-filtered analytically).
 //
+// Placements (scan kind): SimulateOptions::placement renders the scene put in that placement (PlaceScene);
+// bundle.json records the index and truth/placement.csv the true table_from_reference.
+//
 // A table that slips (table_slip_deg > 0; scan, calib-object and table-checkerboard kinds): every table
 // position is rendered at its commanded angle plus a deviation drawn uniformly in +-table_slip_deg (from the
 // scene seed and the step, independent of the step count and the thread count), as a real turntable that
@@ -48,6 +51,9 @@ struct SimulateOptions {
   bool resume = false;             // continue an interrupted bundle at `out` (same scene and options)
   bool truth = true;               // write truth/
   double table_slip_deg = 0.0;     // >= 0: largest deviation of a true table angle from the commanded one
+  // Scans: the object's placement on the table (Scene::placements, PlaceScene); recorded in bundle.json and,
+  // with the truth, as truth/placement.csv.
+  int placement = 0;
 };
 
 Status Simulate(const Scene& scene, const SimulateOptions& options, Progress* progress);

@@ -1,0 +1,404 @@
+// The object's color from many natural frames with the lamp's shading divided out (color.h has the
+// method). Observations are gathered view by view (one natural frame at a time, in parallel), then
+// combined per point.
+#include "rotoscan/pipeline/color.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <random>
+#include <sstream>
+#include <thread>
+
+#include <opencv2/imgproc.hpp>
+
+#include "rotoscan/core/check.h"
+#include "rotoscan/core/logging.h"
+#include "rotoscan/pipeline/process.h"
+
+namespace rotoscan::pipeline {
+namespace {
+
+constexpr double kShadowRatio = 0.6;  // darker than this x the model: a cast shadow in that view
+
+struct Observation {
+  uint32_t point = 0;
+  uint16_t view = 0;
+  std::array<uint8_t, 3> rgb{};
+  float cos_camera = 0;
+};
+
+struct View {
+  double angle = 0;
+  Eigen::Matrix3f cam_from_table_rotation = Eigen::Matrix3f::Identity();
+};
+
+float Luminance(const std::array<uint8_t, 3>& c) {
+  return (c[0] + c[1] + c[2]) / 3.0f;
+}
+
+float Shading(const Eigen::Vector3f& normal_in_cam, const Eigen::Vector3f& lamp) {
+  return 1.0f + std::max(0.0f, normal_in_cam.dot(lamp));
+}
+
+// One view: every point's observation there (facing, inside, unoccluded, unsaturated).
+void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv::Mat& natural, double angle,
+             uint16_t view, const ColorOptions& options, std::vector<Observation>* out) {
+  const geometry::CameraModel& camera = rig.camera;
+  const Eigen::Isometry3d cam_from_table = rig.WorldFromCamAtAngle(angle).inverse();
+  const Eigen::Matrix3f r = cam_from_table.linear().cast<float>();
+  const Eigen::Vector3f t = cam_from_table.translation().cast<float>();
+  const int cell = options.zbuffer_cell_px;
+  const int gw = (camera.width + cell - 1) / cell, gh = (camera.height + cell - 1) / cell;
+  std::vector<float> depth(static_cast<size_t>(gw) * static_cast<size_t>(gh),
+                           std::numeric_limits<float>::infinity());
+  std::vector<Eigen::Vector2f> pixel(cloud.size());
+  std::vector<float> z(cloud.size(), -1.0f);
+  const int k = options.zbuffer_splat_cells;
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3f p = r * cloud.points[i].position_in_table + t;
+    if (p.z() <= 1.0f) continue;
+    const Eigen::Vector2d px = camera.Project(p.cast<double>());
+    if (!camera.IsInside(px)) continue;
+    pixel[i] = px.cast<float>();
+    const float range = p.norm();
+    z[i] = range;
+    const int cx = static_cast<int>(px.x()) / cell, cy = static_cast<int>(px.y()) / cell;
+    for (int dy = -k; dy <= k; ++dy) {
+      const int y = cy + dy;
+      if (y < 0 || y >= gh) continue;
+      for (int dx = -k; dx <= k; ++dx) {
+        const int x = cx + dx;
+        if (x < 0 || x >= gw) continue;
+        float& d = depth[static_cast<size_t>(y) * static_cast<size_t>(gw) + static_cast<size_t>(x)];
+        d = std::min(d, range);
+      }
+    }
+  }
+  const Eigen::Vector3f camera_in_table = -(r.transpose() * t);
+  const float occlusion = static_cast<float>(options.occlusion_mm);
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    if (z[i] < 0) continue;
+    const cloud::CloudPoint& p = cloud.points[i];
+    if (p.normal.squaredNorm() < 0.5f) continue;
+    const Eigen::Vector3f to_camera = (camera_in_table - p.position_in_table).normalized();
+    const float cos_camera = p.normal.normalized().dot(to_camera);
+    if (cos_camera < options.min_cos_camera) continue;
+    const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
+    if (z[i] >
+        depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
+      continue;  // hidden by a nearer surface
+    }
+    const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
+    if (*std::max_element(rgb.begin(), rgb.end()) >= options.saturation) continue;
+    out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera});
+  }
+}
+
+}  // namespace
+
+Status ColorOptions::Check() const {
+  if (max_views < 1 || max_views > 4096) return InvalidArgumentError("color: max_views must be in [1, 4096]");
+  if (!(min_cos_camera >= 0 && min_cos_camera < 1))
+    return InvalidArgumentError("color: min_cos_camera in [0, 1)");
+  if (!(occlusion_mm > 0 && std::isfinite(occlusion_mm)))
+    return InvalidArgumentError("color: occlusion_mm > 0");
+  if (zbuffer_cell_px < 1 || zbuffer_cell_px > 64)
+    return InvalidArgumentError("color: zbuffer_cell_px in [1, 64]");
+  if (zbuffer_splat_cells < 0 || zbuffer_splat_cells > 8) {
+    return InvalidArgumentError("color: zbuffer_splat_cells in [0, 8]");
+  }
+  if (saturation < 1 || saturation > 256) return InvalidArgumentError("color: saturation in [1, 256]");
+  if (lamp_in_cam && (!lamp_in_cam->allFinite() || lamp_in_cam->norm() > 1e3)) {
+    return InvalidArgumentError("color: the lamp vector must be finite (and below 1e3)");
+  }
+  if (threads < 0 || threads > 256) return InvalidArgumentError("color: threads in [0, 256]");
+  return Status::Ok();
+}
+
+Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const ColorOptions& options,
+                      cloud::PointCloud* cloud, ColorSummary* summary, Progress* progress) {
+  ROTOSCAN_CHECK(cloud != nullptr && summary != nullptr);
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  *summary = ColorSummary{};
+  if (!options.enabled || cloud->empty()) return Status::Ok();
+  if (cloud->size() >= (size_t{1} << 32)) return InvalidArgumentError("color: cloud too large");
+  const int steps = source.StepCount();
+  const int wanted = std::min(options.max_views, steps);
+  std::vector<int> indices;
+  for (int v = 0; v < wanted; ++v) {
+    const int index = static_cast<int>(static_cast<int64_t>(v) * steps / wanted);
+    if (indices.empty() || indices.back() != index) indices.push_back(index);
+  }
+
+  // Observations, view by view (each thread its own natural frame and depth buffer).
+  std::vector<std::vector<Observation>> per_view(indices.size());
+  std::vector<View> views(indices.size());
+  std::vector<char> have_view(indices.size(), 0);
+  std::atomic<size_t> next{0};
+  ProgressScope scope(progress, "color", indices.size());
+  auto worker = [&] {
+    for (;;) {
+      if (scope.Cancelled()) return;
+      const size_t v = next.fetch_add(1);
+      if (v >= indices.size()) return;
+      double angle = 0;
+      auto natural = source.LoadNatural(indices[v], &angle);
+      scope.Advance();
+      if (!natural.ok() || natural->empty()) continue;
+      cv::Mat image = To8Bit(*natural, source.bit_depth());
+      if (source.bayer() && image.channels() == 1) {
+        cv::Mat bgr;
+        cv::cvtColor(image, bgr, cv::COLOR_BayerBG2BGR);
+        image = bgr;
+      }
+      if (image.cols != rig.camera.width || image.rows != rig.camera.height) continue;
+      views[v].angle = angle;
+      views[v].cam_from_table_rotation = rig.WorldFromCamAtAngle(angle).linear().transpose().cast<float>();
+      have_view[v] = 1;
+      Observe(rig, *cloud, image, angle, static_cast<uint16_t>(v), options, &per_view[v]);
+    }
+  };
+  const int threads = options.threads > 0
+                          ? options.threads
+                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  std::vector<std::thread> pool;
+  for (int i = 1; i < std::min<int>(threads, static_cast<int>(indices.size())); ++i)
+    pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  if (scope.Cancelled()) return CancelledError("coloring cancelled");
+  for (char h : have_view) summary->views += h;
+  if (summary->views == 0) {
+    summary->note = "no natural frame: colors left as they were";
+    return Status::Ok();
+  }
+
+  // Observations grouped by point (counting sort).
+  const size_t n = cloud->size();
+  std::vector<uint32_t> offset(n + 1, 0);
+  for (const auto& list : per_view) {
+    for (const Observation& o : list) ++offset[o.point + 1];
+  }
+  for (size_t i = 0; i < n; ++i) offset[i + 1] += offset[i];
+  std::vector<Observation> obs(offset[n]);
+  {
+    std::vector<uint32_t> fill(offset.begin(), offset.end() - 1);
+    for (auto& list : per_view) {
+      for (const Observation& o : list) obs[fill[o.point]++] = o;
+      std::vector<Observation>().swap(list);
+    }
+  }
+  auto normal_in_cam = [&](const Observation& o) -> Eigen::Vector3f {
+    return views[o.view].cam_from_table_rotation * cloud->points[o.point].normal.normalized();
+  };
+  // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than kShadowRatio x
+  // the model against a reference taken high in the views' range (the 75th percentile of I / shading: cast
+  // shadows only darken, so the bright views are the lit truth even when most views are shadowed) are
+  // flagged and left out.
+  std::vector<float> ratios;
+  auto albedo = [&](size_t i, const Eigen::Vector3f& lamp, std::vector<char>* shadow) {
+    double num = 0, den = 0;
+    if (shadow != nullptr) {
+      ratios.clear();
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+        ratios.push_back(Luminance(obs[k].rgb) / Shading(normal_in_cam(obs[k]), lamp));
+      }
+      const size_t at = (ratios.size() * 3) / 4;
+      std::nth_element(ratios.begin(), ratios.begin() + static_cast<std::ptrdiff_t>(at), ratios.end());
+      const float reference = ratios[at];
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+        const float s = Shading(normal_in_cam(obs[k]), lamp);
+        (*shadow)[k] = Luminance(obs[k].rgb) < kShadowRatio * reference * s;
+      }
+    }
+    for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+      if (shadow != nullptr && (*shadow)[k]) continue;
+      const double s = Shading(normal_in_cam(obs[k]), lamp);
+      num += Luminance(obs[k].rgb) * s;
+      den += s * s;
+    }
+    return den > 0 ? num / den : 0.0;
+  };
+
+  // The lamp, from a sample of points seen in several views: the L that explains their changes of
+  // brightness best (least squares over all views with each point's own albedo, cast shadows left out),
+  // searched over directions and strengths, then refined by a pattern search.
+  Eigen::Vector3f lamp = Eigen::Vector3f::Zero();
+  std::vector<char> shadow(obs.size(), 0);
+  if (options.lamp_in_cam) {
+    lamp = options.lamp_in_cam->cast<float>();
+    summary->shading_removed = options.remove_shading;
+  } else if (options.remove_shading) {
+    std::vector<size_t> sample;
+    for (size_t i = 0; i < n; ++i) {
+      if (offset[i + 1] - offset[i] >= 6) sample.push_back(i);
+    }
+    std::mt19937_64 random(1);
+    std::shuffle(sample.begin(), sample.end(), random);
+    if (sample.size() > 4000) sample.resize(4000);
+    if (sample.size() < 200) {
+      summary->note = "too few points seen in 6 views or more to estimate the lamp: shading kept";
+    } else {
+      // The sample's luminances and normals (camera frame) once; then the relative residual of the model
+      // under lamp L (1: explains nothing, 0: everything), cast shadows left out as in `albedo`.
+      std::vector<float> ys;
+      std::vector<Eigen::Vector3f> ns;
+      std::vector<uint32_t> begin{0};
+      for (const size_t i : sample) {
+        for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+          ys.push_back(Luminance(obs[k].rgb));
+          ns.push_back(normal_in_cam(obs[k]));
+        }
+        begin.push_back(static_cast<uint32_t>(ys.size()));
+      }
+      std::vector<float> shading(ys.size()), ratio;
+      auto cost = [&](const Eigen::Vector3f& l) {
+        double residual = 0, total = 0;
+        for (size_t j = 0; j + 1 < begin.size(); ++j) {
+          ratio.clear();
+          for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
+            shading[k] = Shading(ns[k], l);
+            ratio.push_back(ys[k] / shading[k]);
+          }
+          const size_t at = (ratio.size() * 3) / 4;
+          std::nth_element(ratio.begin(), ratio.begin() + static_cast<std::ptrdiff_t>(at), ratio.end());
+          const float floor = kShadowRatio * ratio[at];
+          double num = 0, den = 0;
+          for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
+            if (ys[k] < floor * shading[k]) continue;
+            num += ys[k] * shading[k];
+            den += static_cast<double>(shading[k]) * shading[k];
+          }
+          const double a = den > 0 ? num / den : 0;
+          for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
+            if (ys[k] < floor * shading[k]) continue;
+            const double e = ys[k] - a * shading[k];
+            residual += e * e;
+            total += static_cast<double>(ys[k]) * ys[k];
+          }
+        }
+        return total > 0 ? residual / total : 1.0;
+      };
+      double best = cost(lamp);
+      const double flat = best;
+      const int directions = 120;
+      for (int d = 0; d < directions; ++d) {  // a Fibonacci sphere
+        const double z = 1.0 - (2.0 * d + 1.0) / directions, r = std::sqrt(std::max(0.0, 1.0 - z * z));
+        const double phi = d * 2.399963229728653;
+        const Eigen::Vector3f direction(static_cast<float>(r * std::cos(phi)),
+                                        static_cast<float>(r * std::sin(phi)), static_cast<float>(z));
+        for (const float strength : {0.5f, 1.5f, 4.0f}) {
+          const double c = cost(strength * direction);
+          if (c < best) {
+            best = c;
+            lamp = strength * direction;
+          }
+        }
+      }
+      for (float step = 0.5f; step > 0.01f;) {
+        bool improved = false;
+        for (int axis = 0; axis < 3; ++axis) {
+          for (const float sign : {-1.0f, 1.0f}) {
+            Eigen::Vector3f trial = lamp;
+            trial[axis] += sign * step * std::max(1.0f, lamp.norm());
+            const double c = cost(trial);
+            if (c < best) {
+              best = c;
+              lamp = trial;
+              improved = true;
+            }
+          }
+        }
+        if (!improved) step *= 0.5f;
+      }
+      // Well posed when the lamp explains a clear part of what the constant shading did not.
+      if (lamp.allFinite() && lamp.norm() < 100.0f && best < 0.9 * flat) {
+        summary->shading_removed = true;
+      } else {
+        lamp = Eigen::Vector3f::Zero();
+        summary->note =
+            "the lamp could not be estimated (the views' brightness does not follow one): shading kept";
+      }
+    }
+  }
+  summary->lamp_in_cam = lamp.cast<double>();
+
+  // Every point's albedo over its views, weighted by how squarely each faces it.
+  std::vector<Eigen::Vector3f> color(n, Eigen::Vector3f::Constant(-1.0f));
+  size_t dropped = 0, total = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (offset[i + 1] == offset[i]) continue;
+    albedo(i, lamp, &shadow);  // flags the point's cast-shadow views
+    Eigen::Vector3d num = Eigen::Vector3d::Zero();
+    double den = 0;
+    for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+      ++total;
+      if (shadow[k]) {
+        ++dropped;
+        continue;
+      }
+      const double s = Shading(normal_in_cam(obs[k]), lamp);
+      const double w = obs[k].cos_camera;
+      num += w * s * Eigen::Vector3d(obs[k].rgb[0], obs[k].rgb[1], obs[k].rgb[2]);
+      den += w * s * s;
+    }
+    if (den <= 0) continue;
+    color[i] = (num / den).cast<float>();
+    ++summary->points_colored;
+  }
+  summary->shadow_fraction = total > 0 ? static_cast<double>(dropped) / static_cast<double>(total) : 0;
+  summary->mean_views_per_point =
+      summary->points_colored > 0 ? static_cast<double>(total) / static_cast<double>(summary->points_colored)
+                                  : 0;
+  // Points with no usable view: their own step's color, its shading divided out the same way (the step's
+  // angle from the views' uniform turn).
+  double rate = 0;
+  for (size_t v = 0; v < views.size(); ++v) {
+    if (have_view[v] && indices[v] != 0) rate = views[v].angle / indices[v];
+  }
+  for (size_t i = 0; i < n; ++i) {
+    if (color[i].x() >= 0) continue;
+    const cloud::CloudPoint& p = cloud->points[i];
+    const Eigen::Matrix3f r = rig.WorldFromCamAtAngle(rate * p.step).linear().transpose().cast<float>();
+    const float s = p.normal.squaredNorm() > 0.5f ? Shading(r * p.normal.normalized(), lamp) : 1.0f;
+    color[i] = Eigen::Vector3f(p.color[0], p.color[1], p.color[2]) / s;
+  }
+  // One fixed factor, the same for every scan under the same lamp and exposure (so that placements merge
+  // without a seam): the brightness of the albedo on a surface facing the lamp, 1 + |L| x ambient.
+  const float scale = 1.0f + lamp.norm();
+  for (size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) {
+      cloud->points[i].color[static_cast<size_t>(c)] =
+          static_cast<uint8_t>(std::clamp(std::lround(color[i][c] * scale), 0L, 255L));
+    }
+  }
+  summary->done = true;
+  return Status::Ok();
+}
+
+std::string FormatColorSummary(const ColorSummary& s) {
+  std::ostringstream out;
+  out.setf(std::ios::fixed);
+  out.precision(2);
+  if (!s.done)
+    return "color: from each point's own step" + (s.note.empty() ? std::string() : " (" + s.note + ")") +
+           "\n";
+  out << "color: " << s.views << " natural frames, " << s.points_colored << " points seen in "
+      << s.mean_views_per_point << " views on average, " << 100 * s.shadow_fraction
+      << " % of views in cast shadow; ";
+  if (s.shading_removed) {
+    const double strength = s.lamp_in_cam.norm();
+    const Eigen::Vector3d d =
+        strength > 0 ? Eigen::Vector3d(s.lamp_in_cam / strength) : Eigen::Vector3d::Zero();
+    out << "lamp shading removed (lamp direction in the camera frame " << d.x() << " " << d.y() << " "
+        << d.z() << ", diffuse/ambient " << strength << ")\n";
+  } else {
+    out << "shading kept" << (s.note.empty() ? std::string() : " (" + s.note + ")") << "\n";
+  }
+  return out.str();
+}
+
+}  // namespace rotoscan::pipeline
