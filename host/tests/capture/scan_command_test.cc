@@ -202,6 +202,8 @@ TEST_F(ScanCommandTest, CiclopBoardOnAPtyEndsInACloud) {
   std::printf("ciclop over a pty, --live: %zu points on the sphere, %.4f mm RMS\n%s", n, rms, out.c_str());
   EXPECT_GT(n, 100u);
   EXPECT_LT(rms, 0.1);
+}
+
 // `scan --placement N` records the placement; the virtual camera films the scene's placement N, and a
 // placement the scene does not define is refused before anything is written.
 TEST_F(ScanCommandTest, PlacementIsRecordedAndRendered) {
