@@ -460,13 +460,12 @@ int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) 
   if (!initial.ok()) return ReportStatus(context, command, initial.status());
   Result<calib::RigCalibration> refined = calib::RefineRig(*data, *initial, calibration_options);
   if (!refined.ok()) return ReportStatus(context, command, refined.status());
-  // The report first: a failure there leaves no calib.yaml that looks like a finished run.
-  Status written = Status::Ok();
-  if (!options.report.empty()) {
-    written = WriteFileAtomically(options.report, calib::SummaryToJson(refined->summary));
-    if (!written.ok()) return ReportStatus(context, command, written);
-  }
-  written = calib::WriteCalibrationYaml(options.out, *refined);
+  // calib.yaml and the report are committed together: a failure leaves both as they were.
+  Result<std::string> yaml = calib::EncodeCalibrationYaml(*refined, options.out);
+  if (!yaml.ok()) return ReportStatus(context, command, yaml.status());
+  std::vector<PendingFile> files = {FileWithContent(options.out, std::move(*yaml))};
+  if (!options.report.empty()) files.push_back(FileWithContent(options.report, calib::SummaryToJson(refined->summary)));
+  const Status written = WriteFilesTogether(files);
   if (!written.ok()) return ReportStatus(context, command, written);
 
   const calib::RigCalibrationSummary& s = refined->summary;
