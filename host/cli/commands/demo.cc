@@ -83,6 +83,9 @@ int RunDemo(const DemoOptions& options, const Context& context) {
   const std::string cloud_preview = (out / "cloud-preview.png").string();
   const std::string report_path = (out / "report.html").string();
 
+  char step_text[32];
+  std::snprintf(step_text, sizeof(step_text), "%.10g", 360.0 / options.steps);
+  const std::string step_deg = step_text;
   struct Stage {
     std::string title;
     std::vector<std::string> args;
@@ -104,9 +107,10 @@ int RunDemo(const DemoOptions& options, const Context& context) {
       {"3/7 calibrate camera, laser planes and table axis",
        {"calibrate", calib_bundle_a, calib_bundle_b, calib_bundle_c, "--out", calib, "--report",
         (out / "calib-report.json").string()}},
-      {"4/7 render the scan of Spot (" + std::to_string(options.steps) + " steps, both lasers)",
+      // A whole turn: the scene's own step (0.3°) over 200 steps would turn the table through 60° only.
+      {"4/7 render the scan of Spot (" + std::to_string(options.steps) + " steps over a whole turn, both lasers)",
        {"simulate", (data / "scenes/spot.json").string(), "--kind", "scan", "--steps",
-        std::to_string(options.steps), "--out", scan_bundle, "--overwrite"}},
+        std::to_string(options.steps), "--step-deg", step_deg, "--out", scan_bundle, "--overwrite"}},
       {"5/7 process the scan into a colored point cloud",
        {"process", scan_bundle, "--calib", calib, "--out", cloud}},
       {"6/7 mesh (range-scan fusion) and preview the cloud and the mesh",

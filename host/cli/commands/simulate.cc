@@ -1,6 +1,7 @@
 // rotoscan simulate: Render scan or calibration bundles on the virtual scanner (with ground truth).
 //   rotoscan simulate SCENE.json --out DIR [--kind scan|calib-object|checkerboard|table-checkerboard]
 //                    [--steps N] [--threads N] [--overwrite | --resume] [--no-truth] [--table-slip DEG]
+//                    [--step-deg DEG]
 #include <memory>
 #include <ostream>
 
@@ -21,6 +22,7 @@ struct SimulateCommandOptions {
   bool resume = false;
   bool no_truth = false;
   double table_slip_deg = 0.0;
+  double step_deg = 0.0;
 };
 
 int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
@@ -39,6 +41,7 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   sim_options.resume = options.resume;
   sim_options.truth = !options.no_truth;
   sim_options.table_slip_deg = options.table_slip_deg;
+  sim_options.step_deg = options.step_deg;
   const Status status = sim::Simulate(*scene, sim_options, context.progress);
   if (!status.ok()) return ReportStatus(context, "simulate", status);
   *context.out << "rotoscan simulate: wrote " << options.kind << " bundle " << options.out << "\n";
@@ -63,6 +66,9 @@ void RegisterSimulate(CLI::App& app, const Context& context, int* exit_code) {
                 "finish an interrupted bundle (same scene and options): only missing frames are rendered")
       ->excludes(overwrite);
   sub->add_flag("--no-truth", options->no_truth, "do not write truth/");
+  sub->add_option("--step-deg", options->step_deg,
+                  "scan: the table's step in degrees instead of the scene's (e.g. 360 / steps for a whole turn)")
+      ->check(CLI::Range(0.0, 360.0));
   sub->add_option("--table-slip", options->table_slip_deg,
                   "a table that slips: each true angle off the commanded one by up to this many degrees "
                   "(uniform; bundle.json keeps the commanded angle, truth/table_angles.csv the true one)")

@@ -48,6 +48,7 @@ struct SimulateOptions {
   bool resume = false;             // continue an interrupted bundle at `out` (same scene and options)
   bool truth = true;               // write truth/
   double table_slip_deg = 0.0;     // >= 0: largest deviation of a true table angle from the commanded one
+  double step_deg = 0.0;           // > 0: the table's step for this run instead of the scene's (scans)
 };
 
 Status Simulate(const Scene& scene, const SimulateOptions& options, Progress* progress);
