@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "command.h"
+#include "rotoscan/bundle/bundle.h"
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/core/file.h"
@@ -108,16 +109,23 @@ double NumberAfter(const std::string& text, const std::string& key) {
 TEST(MeshCommandTest, EvaluateMeasuresHolesByAreaAndBenchMeshReports) {
   rotoscan::testing::ScratchDir dir;
   ASSERT_TRUE(WriteFileAtomically(dir / "scene.json",
-                                  R"({"seed": 5, "steps": 90, "table": {"step_deg": 4},
+                                  R"({"seed": 5, "steps": 90,
                                       "camera": {"width": 320, "height": 240, "hfov_deg": 20, "supersampling": 1},
                                       "objects": [{"type": "sphere", "radius_mm": 20}]})")
                   .ok());
   const std::string bundle = (dir / "bundle").string(), cloud = (dir / "cloud.ply").string(),
                     mesh = (dir / "mesh.ply").string();
   std::string out, err;
-  ASSERT_EQ(CallOut({"simulate", (dir / "scene.json").string(), "--out", bundle, "--threads", "2"}, &out, &err),
+  // A whole turn in 90 steps: --step-deg overrides the scene's 0.3° (which would turn the table 27° only).
+  ASSERT_EQ(CallOut({"simulate", (dir / "scene.json").string(), "--out", bundle, "--threads", "2", "--step-deg", "4"},
+                    &out, &err),
             kExitOk)
       << err;
+  const Result<bundle::Bundle> rendered = bundle::ReadBundle(bundle);
+  ASSERT_TRUE(rendered.ok()) << rendered.status().ToString();
+  double last_deg = 0;
+  for (const auto& f : rendered->frames) last_deg = std::max(last_deg, f.table_angle_rad * 180 / 3.14159265358979);
+  EXPECT_NEAR(last_deg, 356.0, 1e-6);
   ASSERT_EQ(CallOut({"process", bundle, "--out", cloud, "--threads", "2"}, &out, &err), kExitOk) << err;
   EXPECT_NE(out.find("filter: "), std::string::npos) << out;
   ASSERT_EQ(CallOut({"mesh", cloud, "--out", mesh, "--voxel", "1", "--watertight"}, &out, &err), kExitOk) << err;

@@ -217,7 +217,7 @@ struct Extracted {
 //   the object hides) and carves nothing;
 // - unseen: takes the sign of the nearest observed voxel (a breadth-first sweep over the grid), so that a
 //   hole's rim continues across the hole; then the seen-empty voxels are set outside, everything under
-//   the table and on the box's faces too;
+//   the table and on the box's faces too; unseen sheets thinner than 6 voxels are opened (set outside);
 // - the unobserved voxels are then smoothed by Jacobi sweeps of volumetric diffusion (Davis, Marschner,
 //   Garr & Levoy, "Filling holes in complex surfaces using volumetric diffusion", 3DPVT 2002), the
 //   observed ones held fixed as boundary values and the empty ones kept outside.
@@ -382,6 +382,37 @@ Result<TriangleMesh> ExtractClosed(const Volume& volume, const std::vector<Sampl
     }
   }
   marks.clear();
+
+  // Thin unseen sheets (the nearest-voxel sign continues a thin part, an ear, as a sheet into space nobody
+  // saw) are opened: an unobserved inside voxel with outside voxels within 3 on both sides along an axis
+  // becomes outside. Observed voxels, where a thin part really is, are left alone.
+  {
+    std::vector<uint8_t> open(n, 0);
+    const std::size_t stride_of[3] = {1, nx, nx * ny};
+    const std::size_t size_of[3] = {nx, ny, nz};
+    Parallel(threads, nz, [&](int, std::size_t k0, std::size_t k1) {
+      for (std::size_t k = k0; k < k1; ++k) {
+        for (std::size_t j = 0; j < ny; ++j) {
+          for (std::size_t i = 0; i < nx; ++i) {
+            const std::size_t at = index(i, j, k);
+            if (state[at] == kObserved || value[at] >= 0) continue;
+            const std::size_t coord[3] = {i, j, k};
+            for (int axis = 0; axis < 3 && open[at] == 0; ++axis) {
+              bool below = false, above = false;
+              for (std::size_t d = 1; d <= 3; ++d) {
+                if (!below && coord[axis] >= d && value[at - d * stride_of[axis]] > 0) below = true;
+                if (!above && coord[axis] + d < size_of[axis] && value[at + d * stride_of[axis]] > 0) above = true;
+              }
+              if (below && above) open[at] = 1;
+            }
+          }
+        }
+      }
+    });
+    for (std::size_t at = 0; at < n; ++at) {
+      if (open[at] != 0) value[at] = truncation;
+    }
+  }
 
   // Diffusion over the unobserved voxels (Jacobi), the box's faces held outside.
   std::vector<float> next_value = value;
