@@ -89,7 +89,7 @@ run() {  # target, seeds, runs, max_len
   start=$(date +%s)
   limit=(-runs="$3")
   [[ $mode == smoke ]] && limit=(-max_total_time="$smoke_seconds")
-  "$build/$1" "${limit[@]}" -seed=20261123 -max_len="$4" -print_final_stats=1 -artifact_prefix="$build/findings/" \
+  "$build/$1" "${limit[@]}" -timeout=20 -seed=20261123 -max_len="$4" -print_final_stats=1 -artifact_prefix="$build/findings/" \
     "$2" 2>"$build/$1.log" || { tail -40 "$build/$1.log"; echo "$1: FINDING (see $build/findings/)"; exit 1; }
   end=$(date +%s)
   echo "$1: $(grep -E 'stat::number_of_executed_units' "$build/$1.log" | awk '{print $2}') executions in $((end - start)) s, $(grep -E 'stat::new_units_added' "$build/$1.log" | awk '{print $2}') new units, no finding"
