@@ -49,7 +49,7 @@ targets=(rotoscan_bundle_json_fuzz rotoscan_ply_fuzz rotoscan_scene_fuzz rotosca
 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER="$cc" \
   -DCMAKE_CXX_COMPILER="$cxx" -DROTOSCAN_BUILD_FUZZERS=ON -DROTOSCAN_SANITIZE=ON -DROTOSCAN_BUILD_TESTS=OFF \
   -DROTOSCAN_BUILD_BENCHMARKS=OFF -DROTOSCAN_BUILD_CLI=OFF "${launcher[@]}" >/dev/null
-if cmake --build "$build" --target help 2>/dev/null | grep -q 'rotoscan_mjpeg_fuzz'; then
+if cmake --build "$build" --target help 2>/dev/null | grep 'rotoscan_mjpeg_fuzz' >/dev/null; then  # no -q: pipefail
   targets+=(rotoscan_mjpeg_fuzz)
 fi
 nice cmake --build "$build" --target "${targets[@]}"

@@ -14,7 +14,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   for (ImageRead mode : {ImageRead::kUnchanged, ImageRead::kGray}) {
     const rotoscan::Result<cv::Mat> image = rotoscan::geometry::DecodeImage(bytes, "fuzz", mode);
     if (!image.ok()) continue;
-    if (image->empty() || image->total() > static_cast<size_t>(rotoscan::geometry::kMaxImagePixels)) std::abort();
+    if (image->empty() || image->total() > static_cast<size_t>(rotoscan::geometry::kMaxImagePixels))
+      std::abort();
     if (mode == ImageRead::kGray && image->channels() != 1) std::abort();
   }
   return 0;

@@ -13,7 +13,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const int* wh = kSizes[data[0] & 3];
   const auto format =
       (data[0] & 4) != 0 ? rotoscan::capture::PixelFormat::kGray8 : rotoscan::capture::PixelFormat::kBgr8;
-  const rotoscan::Result<cv::Mat> image = rotoscan::capture::DecodeMjpeg(data + 1, size - 1, wh[0], wh[1], format);
+  const rotoscan::Result<cv::Mat> image =
+      rotoscan::capture::DecodeMjpeg(data + 1, size - 1, wh[0], wh[1], format);
   if (image.ok() && (image->cols != wh[0] || image->rows != wh[1])) std::abort();
   return 0;
 }

@@ -13,8 +13,8 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr float kRadius = 40.0f;  // mm
 const Eigen::Vector3f kCentre(0, 0, 50);
 
-// A turntable scan of a sphere: 200 laser lines (one per table step), a point every 0.1 mm along each, 0.02 mm
-// of noise; then `strays` points scattered uniformly in the sphere's box, each more than 1.5 mm from the
+// A turntable scan of a sphere: 200 laser lines (one per table step), a point every 0.1 mm along each, 0.02
+// mm of noise; then `strays` points scattered uniformly in the sphere's box, each more than 1.5 mm from the
 // surface (the truth says which is which: quality 0.5 marks them).
 PointCloud ScannedSphereWithStrays(int strays, unsigned seed) {
   std::mt19937 rng(seed);

@@ -17,7 +17,8 @@ template <typename Body>
 void ParallelFor(size_t n, int threads, const Body& body) {
   const size_t parts = std::min<size_t>(static_cast<size_t>(threads), std::max<size_t>(1, n / 4096));
   std::vector<std::thread> workers;
-  for (size_t p = 1; p < parts; ++p) workers.emplace_back([&, p] { body(n * p / parts, n * (p + 1) / parts); });
+  for (size_t p = 1; p < parts; ++p)
+    workers.emplace_back([&, p] { body(n * p / parts, n * (p + 1) / parts); });
   body(size_t{0}, n / parts);
   for (std::thread& w : workers) w.join();
 }
@@ -26,23 +27,27 @@ void ParallelFor(size_t n, int threads, const Body& body) {
 
 Status FilterOptions::Check() const {
   if (neighbours < 1 || neighbours > 100) return InvalidArgumentError("outlier neighbours must be 1..100");
-  if (!(std_ratio > 0 && std_ratio <= 100)) return InvalidArgumentError("outlier std ratio must be in (0, 100]");
-  if (!(radius_mm >= 0.01 && radius_mm <= 100)) return InvalidArgumentError("outlier radius must be 0.01..100 mm");
+  if (!(std_ratio > 0 && std_ratio <= 100))
+    return InvalidArgumentError("outlier std ratio must be in (0, 100]");
+  if (!(radius_mm >= 0.01 && radius_mm <= 100))
+    return InvalidArgumentError("outlier radius must be 0.01..100 mm");
   if (!(thin_voxel_mm == 0 || (thin_voxel_mm >= 0.01 && thin_voxel_mm <= 100)))
     return InvalidArgumentError("thinning voxel must be 0 (off) or 0.01..100 mm");
   if (threads < 0 || threads > 256) return InvalidArgumentError("threads must be 0..256");
   return Status::Ok();
 }
 
-Result<PointCloud> FilterCloud(const PointCloud& cloud, const FilterOptions& options, FilterSummary* summary) {
+Result<PointCloud> FilterCloud(const PointCloud& cloud, const FilterOptions& options,
+                               FilterSummary* summary) {
   ROTOSCAN_RETURN_IF_ERROR(options.Check());
   if (cloud.size() >= (size_t{1} << 32)) return InvalidArgumentError("cloud too large (2^32 points or more)");
   for (size_t i = 0; i < cloud.size(); ++i) {
     if (!cloud.points[i].position_in_table.allFinite())
       return InvalidArgumentError("cloud point #" + std::to_string(i) + " is not finite");
   }
-  const int threads = options.threads > 0 ? options.threads
-                                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = options.threads > 0
+                          ? options.threads
+                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   FilterSummary local;
   FilterSummary& s = summary != nullptr ? *summary : local;
   s = FilterSummary{};

@@ -15,12 +15,9 @@ namespace {
 
 int OpenCvFlags(ImageRead mode) {
   switch (mode) {
-    case ImageRead::kGray:
-      return cv::IMREAD_GRAYSCALE;
-    case ImageRead::kColor:
-      return cv::IMREAD_COLOR;
-    case ImageRead::kUnchanged:
-      break;
+    case ImageRead::kGray: return cv::IMREAD_GRAYSCALE;
+    case ImageRead::kColor: return cv::IMREAD_COLOR;
+    case ImageRead::kUnchanged: break;
   }
   return cv::IMREAD_UNCHANGED;
 }
@@ -38,7 +35,8 @@ Result<cv::Mat> DecodeWithOpenCv(const std::string& bytes, const std::string& na
 }
 
 // libpng's simplified API: errors and warnings land in `png.message`, nothing is printed.
-Result<cv::Mat> DecodePng(const std::string& bytes, const std::string& name, ImageRead mode, bool* use_opencv) {
+Result<cv::Mat> DecodePng(const std::string& bytes, const std::string& name, ImageRead mode,
+                          bool* use_opencv) {
   png_image png;
   std::memset(&png, 0, sizeof(png));
   png.version = PNG_IMAGE_VERSION;
@@ -49,8 +47,9 @@ Result<cv::Mat> DecodePng(const std::string& bytes, const std::string& name, Ima
   }
   if (static_cast<int64_t>(png.width) * static_cast<int64_t>(png.height) > kMaxImagePixels) {
     png_image_free(&png);
-    return CorruptDataError(name + " declares " + std::to_string(png.width) + " x " + std::to_string(png.height) +
-                            " pixels, more than " + std::to_string(kMaxImagePixels));
+    return CorruptDataError(name + " declares " + std::to_string(png.width) + " x " +
+                            std::to_string(png.height) + " pixels, more than " +
+                            std::to_string(kMaxImagePixels));
   }
   if ((png.format & PNG_FORMAT_FLAG_LINEAR) != 0) {  // 16 bits per channel: OpenCV keeps them as they are
     png_image_free(&png);
@@ -59,28 +58,28 @@ Result<cv::Mat> DecodePng(const std::string& bytes, const std::string& name, Ima
   }
   const bool color = (png.format & PNG_FORMAT_FLAG_COLOR) != 0;
   const bool alpha = (png.format & PNG_FORMAT_FLAG_ALPHA) != 0;
+  // With alpha, BGRA is read and the alpha dropped after for gray or color (as OpenCV does: libpng would
+  // composite onto black instead).
   png_uint_32 format = PNG_FORMAT_BGR;
   int type = CV_8UC3;
-  if (mode == ImageRead::kUnchanged) {
-    if (!color && !alpha) {
-      format = PNG_FORMAT_GRAY;
-      type = CV_8UC1;
-    } else if (alpha) {
-      format = PNG_FORMAT_BGRA;
-      type = CV_8UC4;
-    }
-  } else if (mode == ImageRead::kGray && !color) {
+  if (alpha) {
+    format = PNG_FORMAT_BGRA;
+    type = CV_8UC4;
+  } else if (!color && mode != ImageRead::kColor) {
     format = PNG_FORMAT_GRAY;
     type = CV_8UC1;
   }
   png.format = format;
   cv::Mat image(static_cast<int>(png.height), static_cast<int>(png.width), type);
-  if (png_image_finish_read(&png, nullptr, image.data, static_cast<png_int_32>(image.step[0]), nullptr) == 0) {
+  if (png_image_finish_read(&png, nullptr, image.data, static_cast<png_int_32>(image.step[0]), nullptr) ==
+      0) {
     const std::string why = png.message;
     png_image_free(&png);
     return CorruptDataError(name + " does not decode as PNG: " + why);
   }
   if (mode == ImageRead::kGray && image.channels() == 3) cv::cvtColor(image, image, cv::COLOR_BGR2GRAY);
+  if (mode == ImageRead::kGray && image.channels() == 4) cv::cvtColor(image, image, cv::COLOR_BGRA2GRAY);
+  if (mode == ImageRead::kColor && image.channels() == 4) cv::cvtColor(image, image, cv::COLOR_BGRA2BGR);
   return image;
 }
 

@@ -84,8 +84,8 @@ Result<ObjWithAtlas> EncodeObjWithAtlas(const TriangleMesh& mesh, const std::str
     const double corners[3][2] = {{x0 + 0.5, y0 + 0.5}, {x0 + 1.5, y0 + 0.5}, {x0 + 0.5, y0 + 1.5}};
     for (const auto& corner : corners) {
       char line[80];
-      const int n = std::snprintf(line, sizeof(line), "vt %.8f %.8f\n", corner[0] / width,
-                                  1.0 - corner[1] / height);
+      const int n =
+          std::snprintf(line, sizeof(line), "vt %.8f %.8f\n", corner[0] / width, 1.0 - corner[1] / height);
       obj.append(line, static_cast<std::size_t>(n));
     }
   }
@@ -97,8 +97,10 @@ Result<ObjWithAtlas> EncodeObjWithAtlas(const TriangleMesh& mesh, const std::str
                                 uv + 1, tri[2] + 1, uv + 2);
     obj.append(line, static_cast<std::size_t>(n));
   }
-  out.mtl = "# rotoscan: the scan's colors as a texture\nnewmtl scan\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd " +
-            texture_name + "\n";
+  out.mtl =
+      "# rotoscan: the scan's colors as a texture\nnewmtl scan\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum "
+      "1\nmap_Kd " +
+      texture_name + "\n";
   return out;
 }
 

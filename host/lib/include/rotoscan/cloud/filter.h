@@ -22,7 +22,7 @@ struct FilterOptions {
   bool remove_outliers = true;
   int neighbours = 8;
   double std_ratio = 3.0;
-  double radius_mm = 1.0;  // the neighbour search's reach
+  double radius_mm = 1.0;      // the neighbour search's reach
   double thin_voxel_mm = 0.0;  // 0: no thinning
   int threads = 2;             // 0: all cores
   // kInvalidArgument naming the field (NaN fails too).
@@ -31,9 +31,9 @@ struct FilterOptions {
 
 struct FilterSummary {
   size_t input = 0;
-  size_t outliers = 0;  // removed as outliers
+  size_t outliers = 0;              // removed as outliers
   double outlier_threshold_mm = 0;  // mean neighbour distance above which a point went
-  size_t thinned = 0;   // removed by the thinning
+  size_t thinned = 0;               // removed by the thinning
   size_t output = 0;
 };
 

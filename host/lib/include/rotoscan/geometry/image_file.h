@@ -29,6 +29,7 @@ constexpr int64_t kMaxImagePixels = int64_t{1} << 28;
 // the file and the decoder's reason if it does not decode.
 Result<cv::Mat> ReadImageFile(const std::filesystem::path& path, ImageRead mode = ImageRead::kUnchanged);
 // The same from bytes in memory; `name` is for the messages.
-Result<cv::Mat> DecodeImage(const std::string& bytes, const std::string& name, ImageRead mode = ImageRead::kUnchanged);
+Result<cv::Mat> DecodeImage(const std::string& bytes, const std::string& name,
+                            ImageRead mode = ImageRead::kUnchanged);
 
 }  // namespace rotoscan::geometry
