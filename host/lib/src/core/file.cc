@@ -165,14 +165,20 @@ Status WriteFilesTogether(const std::vector<PendingFile>& files) {
       if (!b.empty()) fs::remove(b, ec);
     }
   };
-  for (std::size_t k = 0; k < prepared.size(); ++k) {
+  // (One file alone needs none: its rename is the whole commit. Where hard links are not possible, a copy.)
+  for (std::size_t k = 0; k < prepared.size() && prepared.size() > 1; ++k) {
     if (prepared[k].directory || !fs::is_regular_file(prepared[k].path, ec)) continue;
     const fs::path backup = TemporarySibling(prepared[k].path);
     if (::link(prepared[k].path.c_str(), backup.c_str()) != 0) {
       const int error = errno;
-      drop_backups();
-      remove_temporaries(0);
-      return ErrnoError("cannot keep the previous " + prepared[k].path.string() + " while replacing it", error);
+      std::error_code copied;
+      fs::copy_file(prepared[k].path, backup, copied);
+      if (copied) {
+        fs::remove(backup, ec);
+        drop_backups();
+        remove_temporaries(0);
+        return ErrnoError("cannot keep the previous " + prepared[k].path.string() + " while replacing it", error);
+      }
     }
     backups[k] = backup;
   }
