@@ -46,6 +46,8 @@ if command -v ccache >/dev/null; then
 fi
 targets=(rotoscan_bundle_json_fuzz rotoscan_ply_fuzz rotoscan_scene_fuzz rotoscan_calib_yaml_fuzz
   rotoscan_image_fuzz rotoscan_protocol_fuzz)
+# The smoke run follows fuzz.build (CTest fixture): configure only if that has not.
+[[ $mode == smoke && -f "$build/build.ninja" ]] ||
 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER="$cc" \
   -DCMAKE_CXX_COMPILER="$cxx" -DROTOSCAN_BUILD_FUZZERS=ON -DROTOSCAN_SANITIZE=ON -DROTOSCAN_BUILD_TESTS=OFF \
   -DROTOSCAN_BUILD_BENCHMARKS=OFF -DROTOSCAN_BUILD_CLI=OFF "${launcher[@]}" >/dev/null
