@@ -8,7 +8,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git ccache
   # host library
   libeigen3-dev libopencv-dev libopencv-contrib-dev libceres-dev libusb-1.0-0-dev libopen3d-dev
-  libembree-dev nlohmann-json3-dev libcli11-dev libaravis-dev libjpeg-dev
+  libembree-dev nlohmann-json3-dev libcli11-dev libaravis-dev libjpeg-dev libpng-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev umockdev libumockdev-dev clang libclang-rt-14-dev
   # firmware cross build and flashing

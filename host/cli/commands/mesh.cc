@@ -1,5 +1,6 @@
 // rotoscan mesh: a colored point cloud (cloud.ply) to a mesh with vertex colors (range-scan fusion by
 // default, or Poisson) and a preview PNG.
+#include <cstdio>
 #include <ostream>
 
 #include "command.h"
@@ -17,6 +18,7 @@ struct MeshOptions {
   std::string method = "fusion";
   double voxel = 0.5;
   bool open_bottom = false;
+  bool watertight = false;
   int depth = 9;
   double trim = 0.02;
   int threads = 0;
@@ -26,10 +28,14 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
   // Every option is checked before any work, whichever method uses it (NaN passes CLI11's range check).
   if (!(options.trim >= 0.0 && options.trim <= 0.5))
     return InvalidArgumentError("--trim must be in [0, 0.5], got " + std::to_string(options.trim));
+  if (options.watertight && options.method != "fusion")
+    return InvalidArgumentError("--watertight is an option of --method fusion (Poisson's surface is closed already)");
   std::filesystem::path preview = options.preview_path;
   if (preview.empty()) preview = std::filesystem::path(options.out_path).replace_extension(".png");
   ROTOSCAN_RETURN_IF_ERROR(mesh::CheckMeshPath(options.out_path));
-  std::vector<OutputPath> outputs = {{options.out_path, "--out"}, {preview, "--preview"}};
+  std::vector<OutputPath> outputs;
+  for (const std::filesystem::path& file : mesh::MeshFilePaths(options.out_path)) outputs.push_back({file, "--out"});
+  outputs.push_back({preview, "--preview"});
   if (!options.cloud_preview_path.empty()) outputs.push_back({options.cloud_preview_path, "--cloud-preview"});
   ROTOSCAN_RETURN_IF_ERROR(CheckOutputPaths(outputs, {options.cloud_path}));
   ROTOSCAN_ASSIGN_OR_RETURN(cloud::PointCloud cloud, cloud::ReadPly(options.cloud_path));
@@ -50,11 +56,19 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
     mesh::FusionOptions fusion;
     fusion.voxel_mm = options.voxel;
     fusion.flat_bottom = !options.open_bottom;
+    fusion.watertight = options.watertight;
     fusion.threads = options.threads > 0 ? options.threads : 2;
     mesh::FusionSummary summary;
     ROTOSCAN_ASSIGN_OR_RETURN(surface, mesh::FuseSurface(points, fusion, &summary, context.progress));
     how = "fusion, " + std::to_string(options.voxel).substr(0, 4) + " mm voxels" +
           (cloud.scan.known ? ", camera path known" : ", camera path unknown");
+    if (options.watertight) {
+      char closed[160];
+      std::snprintf(closed, sizeof(closed), ", watertight: %zu + %zu rays carved, %.1f %% of vertices fill holes",
+                    summary.carved_point_rays, summary.carved_table_rays,
+                    100.0 * (1.0 - summary.observed_vertex_fraction));
+      how += closed;
+    }
     seconds = summary.seconds;
   }
   // The pictures are drawn before anything is written: a failure leaves no file.
@@ -66,14 +80,22 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
   if (!options.cloud_preview_path.empty()) {
     ROTOSCAN_ASSIGN_OR_RETURN(cloud_picture, mesh::RenderPointPreviewSheet(points, view));
   }
-  ROTOSCAN_RETURN_IF_ERROR(mesh::WriteMesh(options.out_path, surface));
-  ROTOSCAN_RETURN_IF_ERROR(mesh::WritePng(preview, picture));
+  // The mesh (with an OBJ's material and texture) and the pictures are committed together: all or none.
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<PendingFile> files, mesh::MeshFiles(options.out_path, surface));
+  ROTOSCAN_ASSIGN_OR_RETURN(PendingFile preview_file, mesh::PngFile(preview, picture));
+  files.push_back(std::move(preview_file));
   if (!options.cloud_preview_path.empty()) {
-    ROTOSCAN_RETURN_IF_ERROR(mesh::WritePng(options.cloud_preview_path, cloud_picture));
+    ROTOSCAN_ASSIGN_OR_RETURN(PendingFile cloud_file, mesh::PngFile(options.cloud_preview_path, cloud_picture));
+    files.push_back(std::move(cloud_file));
   }
+  ROTOSCAN_RETURN_IF_ERROR(WriteFilesTogether(files));
   *context.out << "mesh: " << cloud.size() << " points -> " << surface.vertices.size() << " vertices, "
                << surface.triangles.size() << " triangles (" << how << ", " << seconds << " s)\n"
-               << "wrote " << options.out_path << " and " << preview.string() << "\n";
+               << "wrote";
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    *context.out << (i == 0 ? " " : i + 1 == files.size() ? " and " : ", ") << files[i].path.string();
+  }
+  *context.out << "\n";
   return Status::Ok();
 }
 
@@ -96,6 +118,9 @@ void RegisterMesh(CLI::App& app, const Context& context, int* exit_code) {
       ->check(CLI::Range(0.05, 20.0));
   sub->add_flag("--open-bottom", options->open_bottom,
                 "fusion: leave the bottom open instead of closing it with the table plane");
+  sub->add_flag("--watertight", options->watertight,
+                "fusion: a closed surface: the space the sensor saw empty is carved, holes are filled by "
+                "diffusion (needs the camera path that rotoscan process writes into cloud.ply)");
   sub->add_option("--depth", options->depth, "Poisson octree depth")
       ->capture_default_str()
       ->check(CLI::Range(4, 12));

@@ -1,10 +1,12 @@
 // rotoscan process: Turn a scan bundle and a calibration into a colored point cloud (cloud.ply)
+#include <cstdio>
 #include <ostream>
 
 #include "command.h"
 #include "rotoscan/core/file.h"
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/cloud/cloud.h"
+#include "rotoscan/cloud/filter.h"
 #include "rotoscan/geometry/rig.h"
 #include "rotoscan/pipeline/process.h"
 
@@ -20,6 +22,8 @@ struct ProcessCommandOptions {
   std::string dark_frame;
   std::string color = "views";
   std::vector<double> lamp;
+  cloud::FilterOptions filter;
+  bool keep_outliers = false;
 };
 
 int RunProcess(const ProcessCommandOptions& o, const Context& context) {
@@ -30,6 +34,10 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
   }
   const Status paths = CheckOutputPaths({{o.out, "--out"}}, {o.bundle, o.calib});
   if (!paths.ok()) return fail(paths);
+  cloud::FilterOptions filter = o.filter;
+  filter.remove_outliers = !o.keep_outliers;
+  filter.threads = o.threads > 0 ? o.threads : 2;
+  if (const Status checked = filter.Check(); !checked.ok()) return fail(checked);
   pipeline::ProcessOptions options;
   auto estimator = laser::ParseEstimator(o.estimator);
   if (!estimator.ok()) return fail(estimator.status());
@@ -81,10 +89,18 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
     return fail(NotFoundError("no point survived in " + o.bundle +
                               ": check the calibration and --min-quality; nothing written"));
   }
-  const Status written = cloud::WritePly(o.out, result->cloud);
+  cloud::FilterSummary filtered;
+  auto clean = cloud::FilterCloud(result->cloud, filter, &filtered);
+  if (!clean.ok()) return fail(clean.status());
+  *context.out << pipeline::FormatSummary(result->summary);
+  char line[200];
+  std::snprintf(line, sizeof(line), "filter: %zu outliers removed (mean distance to %d neighbours > %.3f mm), %zu thinned\n",
+                filtered.outliers, filter.neighbours, filtered.outlier_threshold_mm, filtered.thinned);
+  *context.out << (filter.remove_outliers || filter.thin_voxel_mm > 0 ? line : "filter: off\n");
+  if (clean->empty()) return fail(NotFoundError("no point survived the filter: nothing written"));
+  const Status written = cloud::WritePly(o.out, *clean);
   if (!written.ok()) return fail(written);
-  *context.out << pipeline::FormatSummary(result->summary) << "wrote " << result->cloud.size()
-               << " points to " << o.out << "\n";
+  *context.out << "wrote " << clean->size() << " points to " << o.out << "\n";
   return kExitOk;
 }
 
@@ -104,6 +120,19 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--min-quality", o.min_quality, "drop points of lower quality (0..1)")
       ->capture_default_str();
   sub->add_flag("--no-merge", o.no_merge, "keep both lasers' points where they overlap");
+  sub->add_flag("--keep-outliers", o.keep_outliers,
+                "no statistical outlier removal (by default a point goes when its mean distance to its "
+                "nearest neighbours is over mean + ratio x std of the cloud's)");
+  sub->add_option("--outlier-neighbours", o.filter.neighbours, "outlier removal: neighbours per point")
+      ->capture_default_str();
+  sub->add_option("--outlier-ratio", o.filter.std_ratio, "outlier removal: standard deviations allowed")
+      ->capture_default_str();
+  sub->add_option("--outlier-radius", o.filter.radius_mm,
+                  "outlier removal: neighbour search radius, mm (a missing neighbour counts as this far)")
+      ->capture_default_str();
+  sub->add_option("--thin", o.filter.thin_voxel_mm,
+                  "keep one point (the best) per voxel of this edge, mm (0: no thinning)")
+      ->capture_default_str();
   sub->add_option("--dark-frame", o.dark_frame,
                   "8-bit image with the lasers off: the background of steps without a laser-off frame "
                   "(default: zero, when the scan has no laser-off frame at all)");

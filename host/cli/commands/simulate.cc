@@ -33,11 +33,6 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   if (!paths.ok()) return ReportStatus(context, "simulate", paths);
   auto scene = sim::LoadScene(options.scene);
   if (!scene.ok()) return ReportStatus(context, "simulate", scene.status());
-  if (options.step_deg > 0) {
-    // The table step of this render (the scene's table.step_deg otherwise), part of what --resume checks.
-    scene->rig.step_angle_rad = options.step_deg * 3.14159265358979323846 / 180.0;
-    scene->source += "|step_deg " + std::to_string(options.step_deg);
-  }
   sim::SimulateOptions sim_options;
   sim_options.out = options.out;
   sim_options.kind = *kind;
@@ -48,6 +43,7 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   sim_options.truth = !options.no_truth;
   sim_options.table_slip_deg = options.table_slip_deg;
   sim_options.placement = options.placement;
+  sim_options.step_deg = options.step_deg;
   const Status status = sim::Simulate(*scene, sim_options, context.progress);
   if (!status.ok()) return ReportStatus(context, "simulate", status);
   *context.out << "rotoscan simulate: wrote " << options.kind << " bundle " << options.out << "\n";
@@ -72,14 +68,13 @@ void RegisterSimulate(CLI::App& app, const Context& context, int* exit_code) {
                 "finish an interrupted bundle (same scene and options): only missing frames are rendered")
       ->excludes(overwrite);
   sub->add_flag("--no-truth", options->no_truth, "do not write truth/");
+  sub->add_option("--step-deg", options->step_deg,
+                  "scan: the table's step in degrees instead of the scene's (e.g. 360 / steps for a whole turn)")
+      ->check(CLI::Range(0.0, 360.0));
   sub->add_option("--table-slip", options->table_slip_deg,
                   "a table that slips: each true angle off the commanded one by up to this many degrees "
                   "(uniform; bundle.json keeps the commanded angle, truth/table_angles.csv the true one)")
       ->check(CLI::Range(0.0, 45.0));
-  sub->add_option("--step-deg", options->step_deg,
-                  "table step in degrees (default: the scene's table.step_deg, 0.3); e.g. 1.8 with --steps 200 "
-                  "for a whole turn")
-      ->check(CLI::Range(0.0, 360.0));
   sub->add_option("--placement", options->placement,
                   "scans: the object's placement on the table (the scene's 'placements', e.g. 1 = on its "
                   "side); recorded in the bundle, its true pose in truth/placement.csv")

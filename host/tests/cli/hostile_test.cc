@@ -183,6 +183,33 @@ TEST_F(HostileTest, FullDiskFailsAndKeepsThePreviousFile) {
   EXPECT_TRUE(geometry::ReadRigYaml(dir_ / "calib.yaml").ok());
 }
 
+// Issue 20, the two-file commit: the mesh (fusion: small) fits under the limit, its preview does not. The
+// mesh must not be replaced alone: both keep their previous content. Then an OBJ, whose material and texture
+// are committed with it, the same.
+TEST_F(HostileTest, MeshAndPreviewAreCommittedTogether) {
+  const std::vector<std::string> args = {ROTOSCAN_CLI_PATH, "--no-progress", "mesh", Shared("cloud.ply").string(),
+                                         "--out", P("mesh.ply"), "--voxel", "8", "--threads", "1"};
+  std::string err;
+  ASSERT_EQ(rotoscan::testing::RunProgram(args, 0, false, &err), kExitOk) << err;
+  const auto mesh_size = fs::file_size(dir_ / "mesh.ply"), preview_size = fs::file_size(dir_ / "mesh.png");
+  ASSERT_LT(mesh_size * 2, preview_size);  // the limit below lies between them
+  WriteText(dir_ / "mesh.ply", "previous mesh");
+  WriteText(dir_ / "mesh.png", "previous preview");
+  EXPECT_EQ(rotoscan::testing::RunProgram(args, (mesh_size + preview_size) / 2, false, &err), kExitFailure) << err;
+  EXPECT_NE(err.find("mesh.png"), std::string::npos) << err;
+  EXPECT_EQ(Text(dir_ / "mesh.ply"), "previous mesh");
+  EXPECT_EQ(Text(dir_ / "mesh.png"), "previous preview");
+  EXPECT_EQ(ListTree(dir_.path()), (std::vector<std::string>{"mesh.ply", "mesh.png"}));
+  // An OBJ: mesh, material, texture and preview together; a full disk leaves none of them.
+  std::vector<std::string> obj = args;
+  obj[5] = P("m.obj");
+  EXPECT_EQ(rotoscan::testing::RunProgram(obj, 2000, false, &err), kExitFailure) << err;
+  EXPECT_EQ(ListTree(dir_.path()), (std::vector<std::string>{"mesh.ply", "mesh.png"}));
+  ASSERT_EQ(rotoscan::testing::RunProgram(obj, 0, false, &err), kExitOk) << err;
+  EXPECT_EQ(ListTree(dir_.path()), (std::vector<std::string>{"m.mtl", "m.obj", "m.png", "m_texture.png", "mesh.ply",
+                                                             "mesh.png"}));
+}
+
 // A process killed in the middle of writing its output (SIGXFSZ at the limit) leaves the previous file and
 // nothing else.
 TEST_F(HostileTest, KillInTheMiddleOfAWriteLeavesThePreviousFile) {
@@ -426,6 +453,40 @@ TEST_F(HostileTest, ImageDeclaringHugeSizeIsAnError) {
   ExpectRefused({"calibrate", "camera", "--images", P("images"), "--pattern", "9x6", "--square", "25", "--out",
                  P("camera.yaml")},
                 kExitFailure, "could be read");
+}
+
+// Defect 13, raw libpng lines: a PNG with a corrupt chunk (a CRC mismatch, a torn IDAT) gives our clear
+// error naming the file and nothing from libpng on stderr (the program runs in a child process, so that
+// what libpng would print with fprintf is caught as well).
+TEST_F(HostileTest, CorruptPngPrintsNoRawLibpngLines) {
+  cv::Mat gray(48, 64, CV_8UC1);
+  cv::randu(gray, 0, 255);
+  std::vector<uchar> png;
+  ASSERT_TRUE(cv::imencode(".png", gray, png));
+  WriteText(dir_ / "good.png", std::string(png.begin(), png.end()));
+  std::string crc(png.begin(), png.end());
+  const std::size_t idat = crc.find("IDAT");
+  ASSERT_NE(idat, std::string::npos);
+  crc[idat + 10] = static_cast<char>(crc[idat + 10] ^ 0x5a);  // the chunk's data no longer matches its CRC
+  WriteText(dir_ / "crc.png", crc);
+  WriteText(dir_ / "torn.png", std::string(png.begin(), png.begin() + static_cast<std::ptrdiff_t>(idat + 40)));
+  for (const char* bad : {"crc.png", "torn.png"}) {
+    std::string err;
+    const int code = rotoscan::testing::RunProgram(
+        {ROTOSCAN_CLI_PATH, "--no-progress", "extract", "--on", P(bad), "--off", P("good.png"), "--out", P("l.csv")},
+        0, false, &err);
+    EXPECT_EQ(code, kExitFailure) << err;
+    EXPECT_NE(err.find(bad), std::string::npos) << err;
+    EXPECT_EQ(err.find("libpng"), std::string::npos) << err;
+    EXPECT_FALSE(fs::exists(dir_ / "l.csv"));
+  }
+  // The good one still reads.
+  std::string err;
+  EXPECT_EQ(rotoscan::testing::RunProgram({ROTOSCAN_CLI_PATH, "--no-progress", "extract", "--on", P("good.png"),
+                                           "--off", P("good.png"), "--out", P("l.csv")},
+                                          0, false, &err),
+            kExitOk)
+      << err;
 }
 
 // Defect 11.

@@ -203,3 +203,70 @@ TEST(FileTest, OutputDirectoryRemovedDuringTheWrite) {
 
 }  // namespace
 }  // namespace rotoscan
+
+namespace rotoscan {
+namespace {
+
+// Issue 20: a mesh and its preview (or calib.yaml and its report) are committed together or not at all.
+TEST(FileTest, FilesWrittenTogetherAllOrNone) {
+  testing::ScratchDir dir;
+  ASSERT_TRUE(WriteFilesTogether({FileWithContent(dir / "mesh.ply", "mesh 1"),
+                                  FileWithContent(dir / "mesh.png", "preview 1")})
+                  .ok());
+  EXPECT_EQ(*ReadFile(dir / "mesh.ply"), "mesh 1");
+  EXPECT_EQ(*ReadFile(dir / "mesh.png"), "preview 1");
+  EXPECT_EQ(testing::ListTree(dir.path()), (std::vector<std::string>{"mesh.ply", "mesh.png"}));
+
+  // The second file's writer fails: the first is never renamed, no temporary is left.
+  const Status failed = WriteFilesTogether(
+      {FileWithContent(dir / "mesh.ply", "mesh 2"),
+       PendingFile{dir / "mesh.png", [](const fs::path& tmp) {
+                     std::ofstream(tmp) << "half a picture";
+                     return IoError("cannot write mesh.png: File too large");
+                   }}});
+  EXPECT_EQ(failed.code(), StatusCode::kIoError);
+  EXPECT_EQ(*ReadFile(dir / "mesh.ply"), "mesh 1");
+  EXPECT_EQ(*ReadFile(dir / "mesh.png"), "preview 1");
+  EXPECT_EQ(testing::ListTree(dir.path()), (std::vector<std::string>{"mesh.ply", "mesh.png"}));
+
+  // The second rename fails (its target became a directory while the files were written): the first,
+  // already renamed, gets its previous content back; a third file that had none is removed again.
+  const Status rolled_back = WriteFilesTogether(
+      {FileWithContent(dir / "mesh.ply", "mesh 3"), FileWithContent(dir / "new.txt", "new"),
+       PendingFile{dir / "mesh.png", [&](const fs::path& tmp) {
+                     fs::remove(dir / "mesh.png");
+                     fs::create_directory(dir / "mesh.png");
+                     std::ofstream(tmp) << "preview 3";
+                     return Status::Ok();
+                   }}});
+  EXPECT_EQ(rolled_back.code(), StatusCode::kInvalidArgument) << rolled_back.ToString();
+  EXPECT_NE(rolled_back.message().find("mesh.png"), std::string::npos);
+  EXPECT_EQ(*ReadFile(dir / "mesh.ply"), "mesh 1");
+  EXPECT_FALSE(fs::exists(dir / "new.txt"));
+  EXPECT_EQ(testing::ListTree(dir.path()), (std::vector<std::string>{"mesh.ply", "mesh.png"}));
+
+  // The same target twice is a caller's mistake, refused before anything is written.
+  EXPECT_EQ(WriteFilesTogether({FileWithContent(dir / "a", "1"), FileWithContent(dir / "a", "2")}).code(),
+            StatusCode::kInvalidArgument);
+}
+
+// A full disk in the second file's write (RLIMIT_FSIZE in a child process): the first stays as it was.
+TEST(FileTest, FullDiskInTheSecondFileKeepsBoth) {
+  testing::ScratchDir dir;
+  ASSERT_TRUE(WriteFileAtomically(dir / "mesh.ply", "old mesh").ok());
+  ASSERT_TRUE(WriteFileAtomically(dir / "mesh.png", "old preview").ok());
+  const int code = testing::RunWithFullDisk(4096, [&] {
+    return WriteFilesTogether({FileWithContent(dir / "mesh.ply", std::string(1000, 'm')),
+                               FileWithContent(dir / "mesh.png", std::string(100000, 'p'))})
+                   .ok()
+               ? 0
+               : 1;
+  });
+  EXPECT_EQ(code, 1);
+  EXPECT_EQ(*ReadFile(dir / "mesh.ply"), "old mesh");
+  EXPECT_EQ(*ReadFile(dir / "mesh.png"), "old preview");
+  EXPECT_EQ(testing::ListTree(dir.path()), (std::vector<std::string>{"mesh.ply", "mesh.png"}));
+}
+
+}  // namespace
+}  // namespace rotoscan

@@ -86,6 +86,20 @@ TEST(RigTest, MatrixDeclaringHugeRowsIsRefusedBeforeAllocating) {
   }
 }
 
+// Found by the CI fuzz smoke run (calib.yaml target, 2026-11-24): these 31 bytes made OpenCV 4.6's YAML
+// parser loop forever ("- \xEC" sequence items: not UTF-8). Refused before the parser, at once; a written
+// calib.yaml (ASCII) still reads.
+TEST(RigTest, MalformedUtf8ThatHangsOpenCvsParserIsCorruptData) {
+  const std::string hang("%YAML:1.0\n---AML:1.\n-\xec\n\n-\xec\n 21\n", 31);
+  const Result<Rig> rig = ParseRigYaml(hang, "hang.yaml");
+  EXPECT_EQ(rig.status().code(), StatusCode::kCorruptData) << rig.status().ToString();
+  EXPECT_NE(rig.status().message().find("hang.yaml"), std::string::npos);
+  EXPECT_EQ(ParseRigYaml(std::string("%YAML:1.0\n\x01\n", 13), "c.yaml").status().code(), StatusCode::kCorruptData);
+  ScratchDir dir;
+  ASSERT_TRUE(WriteRigYaml(dir / "calib.yaml", ExampleRig()).ok());
+  EXPECT_TRUE(ReadRigYaml(dir / "calib.yaml").ok());
+}
+
 // Found by the calib.yaml fuzzer: a key mangled to ":dt:" makes OpenCV's YAML parser throw std::length_error
 // (not a cv::Exception), which escaped the reader.
 TEST(RigTest, MangledKeyIsCorruptDataNotAnException) {

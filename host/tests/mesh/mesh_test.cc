@@ -2,12 +2,18 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <random>
 
+#include <open3d/geometry/Image.h>
+#include <open3d/geometry/TriangleMesh.h>
+#include <open3d/io/TriangleMeshIO.h>
 #include <opencv2/core.hpp>
 
+#include "rotoscan/core/file.h"
 #include "rotoscan/mesh/report.h"
 #include "testing/testing.h"
 
@@ -141,6 +147,152 @@ TEST(FusionTest, FlatBottomClosesTheCanOnTheTable) {
   EXPECT_GT(BoundaryEdges(*open), 100u);
 }
 
+// Every edge shared by exactly two triangles, and the Euler characteristic V - E + F of the used vertices.
+struct Topology {
+  std::size_t edges_not_two = 0;
+  long euler = 0;
+};
+Topology TopologyOf(const TriangleMesh& mesh) {
+  std::map<std::pair<int, int>, int> count;
+  std::vector<bool> used(mesh.vertices.size(), false);
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    for (int c = 0; c < 3; ++c) {
+      ++count[std::minmax(t[c], t[(c + 1) % 3])];
+      used[static_cast<std::size_t>(t[c])] = true;
+    }
+  }
+  Topology topology;
+  for (const auto& [edge, n] : count) topology.edges_not_two += n == 2 ? 0 : 1;
+  const long vertices = std::count(used.begin(), used.end(), true);
+  topology.euler = vertices - static_cast<long>(count.size()) + static_cast<long>(mesh.triangles.size());
+  return topology;
+}
+
+// Median and 95th percentile of |value|.
+std::pair<double, double> MedianP95(std::vector<double> values) {
+  for (double& v : values) v = std::abs(v);
+  std::sort(values.begin(), values.end());
+  if (values.empty()) return {0, 0};
+  return {values[values.size() / 2], values[std::min(values.size() - 1, values.size() * 95 / 100)]};
+}
+
+// Cameras on a circle of 300 mm around the table axis at height `z`, every 10 degrees.
+std::vector<Eigen::Vector3d> CameraCircle(double z) {
+  std::vector<Eigen::Vector3d> cameras;
+  for (int s = 0; s < 36; ++s) {
+    const double a = 2 * 3.14159265358979 * s / 36;
+    cameras.emplace_back(300 * std::cos(a), 300 * std::sin(a), z);
+  }
+  return cameras;
+}
+
+// Each point seen from the camera of the circle nearest its azimuth (a turntable scan's geometry).
+void SeeFromCameras(ColoredPoints* cloud, const std::vector<Eigen::Vector3d>& cameras) {
+  cloud->cameras = cameras;
+  cloud->views.clear();
+  for (const Eigen::Vector3d& p : cloud->points) {
+    const double a = std::atan2(p.y(), p.x());
+    int s = static_cast<int>(std::lround(a / (2 * 3.14159265358979) * 36.0));
+    s = ((s % 36) + 36) % 36;
+    cloud->views.push_back((cameras[static_cast<std::size_t>(s)] - p).normalized());
+  }
+  cloud->step_rad = 2 * 3.14159265358979 / 36;
+}
+
+// A sphere floating above the table with a round hole (30 degrees about +x, ~20 mm across) that no laser
+// reached: the open mesh has the hole, the watertight one is closed (genus 0) and as close to the true
+// sphere where the points are.
+TEST(FusionTest, WatertightClosesAHoleAndKeepsTheObservedSurface) {
+  ColoredPoints cloud = Sphere(60000, 21);
+  ColoredPoints holed;
+  for (std::size_t i = 0; i < cloud.points.size(); ++i) {
+    const Eigen::Vector3d d = (cloud.points[i] - kCentre).normalized();
+    if (d.x() > std::cos(30 * 3.14159265358979 / 180)) continue;
+    holed.points.push_back(cloud.points[i]);
+    holed.normals.push_back(cloud.normals[i]);
+    holed.colors.push_back(cloud.colors[i]);
+  }
+  SeeFromCameras(&holed, CameraCircle(kCentre.z()));
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  const Result<TriangleMesh> open = FuseSurface(holed, options);
+  options.watertight = true;
+  FusionSummary summary;
+  const Result<TriangleMesh> closed = FuseSurface(holed, options, &summary);
+  ASSERT_TRUE(open.ok() && closed.ok()) << closed.status().ToString();
+  EXPECT_GT(BoundaryEdges(*open), 50u);  // the hole
+  const Topology topology = TopologyOf(*closed);
+  EXPECT_EQ(topology.edges_not_two, 0u);
+  EXPECT_EQ(topology.euler, 2);  // one closed surface of genus 0
+  EXPECT_EQ(closed->vertex_colors.size(), closed->vertices.size());
+  EXPECT_GT(summary.carved_point_rays, 10000u);
+  EXPECT_GT(summary.carved_table_rays, 0u);
+  EXPECT_GT(summary.observed_vertex_fraction, 0.85);  // the hole is 6.7 % of the sphere
+  // On the observed part (more than 40 degrees from the hole's centre: 10 degrees from its rim, where the
+  // fill meets the surface): radial error against the truth.
+  auto errors = [](const TriangleMesh& mesh, bool observed) {
+    std::vector<double> e;
+    for (const Eigen::Vector3d& v : mesh.vertices) {
+      const Eigen::Vector3d d = v - kCentre;
+      const bool in_hole = d.normalized().x() > std::cos((observed ? 40 : 30) * 3.14159265358979 / 180);
+      if (in_hole != observed) e.push_back(d.norm() - kRadius);
+    }
+    return e;
+  };
+  const auto [open_median, open_p95] = MedianP95(errors(*open, true));
+  const auto [closed_median, closed_p95] = MedianP95(errors(*closed, true));
+  EXPECT_LT(closed_median, open_median + 0.01);
+  EXPECT_LT(closed_p95, open_p95 + 0.02);
+  // The filled hole is there, and no farther from the sphere than the cap's height (5.36 mm: how far a
+  // flat patch across the rim would be at its centre); nothing invents surface beyond it.
+  const std::vector<double> fill = errors(*closed, false);
+  EXPECT_GT(fill.size(), 100u);
+  const auto [fill_median, fill_p95] = MedianP95(fill);
+  const double sagitta = kRadius * (1 - std::cos(30 * 3.14159265358979 / 180));
+  EXPECT_LT(fill_median, 1.0);
+  EXPECT_LT(fill_p95, 0.75 * sagitta);
+  for (double e : fill) EXPECT_LT(std::abs(e), sagitta) << "a fill vertex";
+  const double true_volume = 4.0 / 3.0 * 3.14159265358979 * kRadius * kRadius * kRadius;
+  EXPECT_NEAR(SignedVolume(*closed) / true_volume, 1.0, 0.02);
+}
+
+// A can with no lid standing on the table: the flat bottom closes the bottom, the watertight surface the
+// top; closed and of genus 0.
+TEST(FusionTest, WatertightCanOnTheTableIsClosed) {
+  constexpr double kCanRadius = 20, kHeight = 30;
+  ColoredPoints cloud;
+  for (int i = 0; i < 400; ++i) {
+    const double a = 2 * 3.14159265358979 * i / 400;
+    const Eigen::Vector3d radial(std::cos(a), std::sin(a), 0);
+    for (double z = 0.1; z < kHeight; z += 0.25) {
+      cloud.points.push_back(kCanRadius * radial + Eigen::Vector3d(0, 0, z));
+      cloud.normals.push_back(radial);
+    }
+  }
+  SeeFromCameras(&cloud, CameraCircle(60));
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  options.watertight = true;
+  const Result<TriangleMesh> closed = FuseSurface(cloud, options);
+  ASSERT_TRUE(closed.ok()) << closed.status().ToString();
+  const Topology topology = TopologyOf(*closed);
+  EXPECT_EQ(topology.edges_not_two, 0u);
+  EXPECT_EQ(topology.euler, 2);
+  double lowest = 1e9, highest = -1e9;
+  for (const auto& v : closed->vertices) {
+    lowest = std::min(lowest, v.z());
+    highest = std::max(highest, v.z());
+  }
+  EXPECT_NEAR(lowest, 0.0, 0.3);
+  EXPECT_NEAR(highest, kHeight, 4.0);  // the lid is invented: near the rim, not on it
+  const double volume = 3.14159265358979 * kCanRadius * kCanRadius * kHeight;
+  EXPECT_NEAR(SignedVolume(*closed) / volume, 1.0, 0.1);
+  // Without the cameras there is nothing to carve with: a clear error.
+  ColoredPoints blind = cloud;
+  blind.views.clear();
+  EXPECT_EQ(FuseSurface(blind, options).status().code(), StatusCode::kInvalidArgument);
+}
+
 TEST(FusionTest, BadInput) {
   FusionOptions options;
   EXPECT_EQ(FuseSurface(Sphere(50, 3), options).status().code(), StatusCode::kInvalidArgument);
@@ -260,15 +412,101 @@ TEST(MeshIoTest, EveryFormatRoundTripsThroughOpen3d) {
       }
     }
     if (std::string(ext) != ".stl") {
-      ASSERT_EQ(back->vertices.size(), 4u);
-      ASSERT_EQ(back->vertex_colors.size(), 4u);
-      for (std::size_t v = 0; v < 4; ++v) {  // the OBJ reader orders vertices by first use: match by place
+      // The OBJ has UVs per corner, so Open3D's reader makes one vertex per (position, UV): 12 here.
+      ASSERT_EQ(back->vertices.size(), std::string(ext) == ".obj" ? 12u : 4u);
+      ASSERT_EQ(back->vertex_colors.size(), back->vertices.size());
+      for (std::size_t v = 0; v < back->vertices.size(); ++v) {  // vertices in order of first use: match by place
         std::size_t same = 0;
         while (same < 3 && (mesh.vertices[same] - back->vertices[v]).norm() > 1e-4) ++same;
         EXPECT_LT((back->vertex_colors[v] - mesh.vertex_colors[same]).norm(), 1e-2) << v;
       }
     }
   }
+}
+
+// The OBJ's texture atlas, read back by Open3D (tinyobjloader and its image reader): every corner's UV
+// samples its vertex's color, and bilinear sampling inside a triangle gives the linear blend of its three
+// vertex colors (what a viewer shows), within a level of 8-bit rounding.
+TEST(MeshIoTest, ObjTextureAtlasReadsBackInOpen3d) {
+  rotoscan::testing::ScratchDir dir;
+  TriangleMesh mesh;  // 300 separate triangles with varied colors
+  for (int k = 0; k < 300; ++k) {
+    const double a = 0.02 * k;
+    const int base = static_cast<int>(mesh.vertices.size());
+    mesh.vertices.emplace_back(std::cos(a) * 20, std::sin(a) * 20, k * 0.1);
+    mesh.vertices.emplace_back(std::cos(a + 0.3) * 20, std::sin(a + 0.3) * 20, k * 0.1 + 1);
+    mesh.vertices.emplace_back(0, 0, k * 0.1 + 2);
+    // Chosen so that c1 + c2 - c0 stays in 0..1 (no clamping: the blend is exact up to rounding).
+    mesh.vertex_colors.emplace_back(0.3 + 0.2 * std::sin(a), 0.2, 0.5);
+    mesh.vertex_colors.emplace_back(0.1, 0.5 + 0.4 * std::cos(a), 0.3);
+    mesh.vertex_colors.emplace_back(0.7, 0.3, 0.2 + 0.5 * std::fmod(a, 1.0));
+    mesh.triangles.emplace_back(base, base + 1, base + 2);
+  }
+  ASSERT_TRUE(WriteMesh(dir / "m.obj", mesh).ok());
+  // The first triangle sits in the atlas's top-left cell: in the file its v is near 1 (v up).
+  const Result<std::string> text = ReadFile(dir / "m.obj");
+  ASSERT_TRUE(text.ok());
+  const std::size_t vt = text->find("\nvt ");
+  ASSERT_NE(vt, std::string::npos);
+  double u0 = 0, v0 = 0;
+  ASSERT_EQ(std::sscanf(text->c_str() + vt, "\nvt %lf %lf", &u0, &v0), 2);
+  EXPECT_LT(u0, 0.5);
+  EXPECT_GT(v0, 0.5);
+  EXPECT_NE(text->find("mtllib m.mtl"), std::string::npos);
+  EXPECT_NE(ReadFile(dir / "m.mtl")->find("map_Kd m_texture.png"), std::string::npos);
+  EXPECT_TRUE(std::filesystem::exists(dir / "m.mtl"));
+  EXPECT_TRUE(std::filesystem::exists(dir / "m_texture.png"));
+  open3d::geometry::TriangleMesh o3d;
+  ASSERT_TRUE(open3d::io::ReadTriangleMesh((dir / "m.obj").string(), o3d));
+  ASSERT_EQ(o3d.triangles_.size(), mesh.triangles.size());
+  ASSERT_EQ(o3d.triangle_uvs_.size(), 3 * mesh.triangles.size());
+  ASSERT_FALSE(o3d.textures_.empty());
+  // Open3D keeps an empty texture first for "no material"; the triangles name ours.
+  ASSERT_EQ(o3d.triangle_material_ids_.size(), mesh.triangles.size());
+  const int material = o3d.triangle_material_ids_[0];
+  ASSERT_TRUE(material >= 0 && static_cast<std::size_t>(material) < o3d.textures_.size());
+  const open3d::geometry::Image& texture = o3d.textures_[static_cast<std::size_t>(material)];
+  ASSERT_EQ(texture.num_of_channels_, 3);
+  ASSERT_EQ(texture.bytes_per_channel_, 1);
+  // Bilinear sample (u, v), RGB 0..255. The file's v runs up from the image's bottom row (OBJ's convention,
+  // Blender's and MeshLab's); Open3D's reader turns it into image rows from the top (v' = 1 - v).
+  auto sample = [&](const Eigen::Vector2d& uv) {
+    const double x = uv.x() * texture.width_ - 0.5, y = uv.y() * texture.height_ - 0.5;
+    const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+    const double fx = x - x0, fy = y - y0;
+    Eigen::Vector3d rgb = Eigen::Vector3d::Zero();
+    for (int dy = 0; dy <= 1; ++dy) {
+      for (int dx = 0; dx <= 1; ++dx) {
+        const double w = (dx ? fx : 1 - fx) * (dy ? fy : 1 - fy);
+        const uint8_t* px = texture.PointerAt<uint8_t>(std::clamp(x0 + dx, 0, texture.width_ - 1),
+                                                       std::clamp(y0 + dy, 0, texture.height_ - 1), 0);
+        rgb += w * Eigen::Vector3d(px[0], px[1], px[2]);
+      }
+    }
+    return rgb;
+  };
+  double worst = 0;
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const Eigen::Vector3i& tri = mesh.triangles[t];
+    const Eigen::Vector2d uv[3] = {o3d.triangle_uvs_[3 * t], o3d.triangle_uvs_[3 * t + 1], o3d.triangle_uvs_[3 * t + 2]};
+    for (const Eigen::Vector3d& w : {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0), Eigen::Vector3d(0, 0, 1),
+                                     Eigen::Vector3d(1.0 / 3, 1.0 / 3, 1.0 / 3), Eigen::Vector3d(0.6, 0.3, 0.1)}) {
+      const Eigen::Vector2d at = w[0] * uv[0] + w[1] * uv[1] + w[2] * uv[2];
+      const Eigen::Vector3d expected = 255.0 * (w[0] * mesh.vertex_colors[static_cast<std::size_t>(tri[0])] +
+                                                w[1] * mesh.vertex_colors[static_cast<std::size_t>(tri[1])] +
+                                                w[2] * mesh.vertex_colors[static_cast<std::size_t>(tri[2])]);
+      worst = std::max(worst, (sample(at) - expected).cwiseAbs().maxCoeff());
+    }
+  }
+  EXPECT_LT(worst, 1.5);  // the 8-bit rounding of the texels
+  // A mesh without colors is a plain OBJ: no material, no texture.
+  TriangleMesh plain = Tetrahedron();
+  plain.vertex_colors.clear();
+  ASSERT_TRUE(WriteMesh(dir / "p.obj", plain).ok());
+  EXPECT_FALSE(std::filesystem::exists(dir / "p.mtl"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "p_texture.png"));
+  EXPECT_EQ(MeshFilePaths(dir / "p.obj", &plain).size(), 1u);
+  EXPECT_EQ(MeshFilePaths(dir / "m.obj").size(), 3u);
 }
 
 TEST(MeshIoTest, GlbFollowsTheContainerLayout) {

@@ -20,6 +20,7 @@
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/file.h"
 #include "rotoscan/core/logging.h"
+#include "rotoscan/geometry/image_file.h"
 #include "rotoscan/geometry/rigid.h"
 
 namespace rotoscan::bundle {
@@ -457,13 +458,9 @@ Result<cv::Mat> ReadFrame(const Bundle& bundle, const FrameRecord& frame) {
   const fs::path path = bundle.FramePath(frame);
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return NotFoundError("frame " + path.string() + " not found");
-  cv::Mat image;
-  try {
-    image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    return CorruptDataError("frame " + path.string() + " does not decode: " + e.what());
-  }
-  if (image.empty()) return CorruptDataError("frame " + path.string() + " does not decode");
+  Result<cv::Mat> decoded = geometry::ReadImageFile(path);
+  if (!decoded.ok()) return CorruptDataError("frame " + decoded.status().message());
+  cv::Mat image = std::move(*decoded);
   Status s = ValidateImage(bundle.header.camera, image, "frame " + path.string());
   if (!s.ok()) return CorruptDataError(s.message());
   return image;
@@ -505,11 +502,7 @@ void RemoveStrayTemporaries(const fs::path& working) {
 
 // True when the frame on disk decodes to an image (a 0-byte or torn file is rendered again).
 bool FrameDecodes(const fs::path& path) {
-  try {
-    return !cv::imread(path.string(), cv::IMREAD_UNCHANGED).empty();
-  } catch (const cv::Exception&) {
-    return false;
-  }
+  return geometry::ReadImageFile(path).ok();
 }
 
 // Locks `directory`/.lock; returns the descriptor, or an error when another process holds it.

@@ -10,6 +10,7 @@
 
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/logging.h"
+#include "rotoscan/geometry/image_file.h"
 
 namespace rotoscan::calib::internal {
 
@@ -132,12 +133,10 @@ Result<ImageFolder> ReadImageFolder(
   for (const auto& file : files) {
     if (scope.Cancelled()) return CancelledError("camera calibration cancelled");
     scope.Advance();
-    cv::Mat image;
-    try {
-      image = cv::imread(file.string(), cv::IMREAD_GRAYSCALE);
-    } catch (const cv::Exception& e) {  // a header declaring more pixels than OpenCV allows: skip it too
-      image.release();
-    }
+    // An unreadable file (a header declaring more pixels than allowed too) is skipped; the decoder's
+    // messages come back in the status, never on stderr.
+    Result<cv::Mat> decoded = geometry::ReadImageFile(file, geometry::ImageRead::kGray);
+    cv::Mat image = decoded.ok() ? *decoded : cv::Mat();
     const std::string name = file.filename().string();
     if (image.empty()) {
       folder.rejected.push_back(name + ": unreadable image");

@@ -881,15 +881,20 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
 }
 
 Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibration& calibration) {
-  ROTOSCAN_RETURN_IF_ERROR(
-      calibration.estimate.rig.Validate().WithContext("refusing to write " + path.string()));
+  ROTOSCAN_ASSIGN_OR_RETURN(std::string text, EncodeCalibrationYaml(calibration, path.string()));
+  return WriteFileAtomically(path, text);
+}
+
+Result<std::string> EncodeCalibrationYaml(const RigCalibration& calibration, const std::string& name) {
+  const std::string path = name;  // for the messages
+  ROTOSCAN_RETURN_IF_ERROR(calibration.estimate.rig.Validate().WithContext("refusing to write " + path));
   const RigCalibrationSummary& s = calibration.summary;
   // Written to memory first: FileStorage does not report a failed write (a full disk).
   std::string text;
   try {
     cv::FileStorage fs(".yaml", cv::FileStorage::WRITE | cv::FileStorage::MEMORY |
                                   cv::FileStorage::FORMAT_YAML);
-    if (!fs.isOpened()) return InternalError("cannot start the YAML of " + path.string());
+    if (!fs.isOpened()) return InternalError("cannot start the YAML of " + path);
     geometry::WriteRigNodes(fs, calibration.estimate.rig);
     fs << "report_passed" << (s.passed ? 1 : 0);
     fs << "report_failures"
@@ -935,9 +940,9 @@ Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibrat
     fs << "std_angle_scale" << d.angle_scale;
     text = fs.releaseAndGetString();
   } catch (const cv::Exception& ex) {
-    return IoError("writing " + path.string() + ": " + ex.msg);
+    return IoError("writing " + path + ": " + ex.msg);
   }
-  return WriteFileAtomically(path, text);
+  return text;
 }
 
 std::string SummaryToJson(const RigCalibrationSummary& s) {

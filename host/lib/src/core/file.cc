@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cstring>
 #include <fstream>
+#include <memory>
 #include <system_error>
 
 namespace rotoscan {
@@ -60,7 +61,16 @@ Status SyncPath(const fs::path& path, const fs::path& target) {
 
 }  // namespace
 
-Status WriteAtomically(const fs::path& path, const std::function<Status(const fs::path&)>& write) {
+namespace {
+
+// A file written to its temporary sibling and synced, not yet renamed into place.
+struct Prepared {
+  fs::path path, tmp;
+  bool directory = false;
+};
+
+// Checks the target, calls `write(tmp)` and syncs what it wrote. On failure nothing is left.
+Status Prepare(const fs::path& path, const std::function<Status(const fs::path&)>& write, Prepared* out) {
   if (path.empty()) return InvalidArgumentError("empty output path");
   const fs::path parent = ParentOf(path);
   std::error_code ec;
@@ -88,20 +98,110 @@ Status WriteAtomically(const fs::path& path, const std::function<Status(const fs
     RemoveQuietly(tmp);
     return status;
   }
+  *out = {path, tmp, directory};
+  return Status::Ok();
+}
+
+// Renames a prepared file over its target. On failure the temporary file is removed.
+Status Commit(const Prepared& file) {
+  std::error_code ec;
   // Checked again just before the rename: the target may have been replaced while we worked.
-  if (const std::string what = NotARegularFile(path, directory); !what.empty()) {
-    RemoveQuietly(tmp);
-    return InvalidArgumentError("refusing to replace " + path.string() + ": it is " + what);
+  if (const std::string what = NotARegularFile(file.path, file.directory); !what.empty()) {
+    RemoveQuietly(file.tmp);
+    return InvalidArgumentError("refusing to replace " + file.path.string() + ": it is " + what);
   }
   // A directory cannot be renamed over a non-empty directory: remove the old one first.
-  if (directory && fs::exists(path, ec)) fs::remove_all(path, ec);
-  fs::rename(tmp, path, ec);
+  if (file.directory && fs::exists(file.path, ec)) fs::remove_all(file.path, ec);
+  fs::rename(file.tmp, file.path, ec);
   if (ec) {
-    RemoveQuietly(tmp);
-    return IoError("cannot rename " + tmp.string() + " to " + path.string() + ": " + ec.message());
+    RemoveQuietly(file.tmp);
+    return IoError("cannot rename " + file.tmp.string() + " to " + file.path.string() + ": " + ec.message());
   }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status WriteAtomically(const fs::path& path, const std::function<Status(const fs::path&)>& write) {
+  Prepared file;
+  ROTOSCAN_RETURN_IF_ERROR(Prepare(path, write, &file));
+  ROTOSCAN_RETURN_IF_ERROR(Commit(file));
   // The rename itself is durable once the directory is synced.
-  return SyncPath(parent, path);
+  return SyncPath(ParentOf(path), path);
+}
+
+Status WriteFilesTogether(const std::vector<PendingFile>& files) {
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    for (std::size_t j = 0; j < i; ++j) {
+      if (files[i].path.lexically_normal() == files[j].path.lexically_normal())
+        return InvalidArgumentError("the same file twice in one commit: " + files[i].path.string());
+    }
+  }
+  // 1. Every file to its temporary sibling; the first failure removes the others' temporaries.
+  std::vector<Prepared> prepared;
+  auto remove_temporaries = [&](std::size_t from) {
+    for (std::size_t k = from; k < prepared.size(); ++k) RemoveQuietly(prepared[k].tmp);
+  };
+  for (const PendingFile& file : files) {
+    Prepared p;
+    Status status;
+    try {
+      status = Prepare(file.path, file.write, &p);
+    } catch (...) {
+      remove_temporaries(0);
+      throw;
+    }
+    if (!status.ok()) {
+      remove_temporaries(0);
+      return status;
+    }
+    prepared.push_back(p);
+  }
+  // 2. The previous files kept under a second name (a hard link: the target itself never disappears).
+  std::vector<fs::path> backups(prepared.size());
+  std::error_code ec;
+  auto drop_backups = [&] {
+    for (const fs::path& b : backups) {
+      if (!b.empty()) fs::remove(b, ec);
+    }
+  };
+  // (One file alone needs none: its rename is the whole commit. Where hard links are not possible, a copy.)
+  for (std::size_t k = 0; k < prepared.size() && prepared.size() > 1; ++k) {
+    if (prepared[k].directory || !fs::is_regular_file(prepared[k].path, ec)) continue;
+    const fs::path backup = TemporarySibling(prepared[k].path);
+    if (::link(prepared[k].path.c_str(), backup.c_str()) != 0) {
+      const int error = errno;
+      std::error_code copied;
+      fs::copy_file(prepared[k].path, backup, copied);
+      if (copied) {
+        fs::remove(backup, ec);
+        drop_backups();
+        remove_temporaries(0);
+        return ErrnoError("cannot keep the previous " + prepared[k].path.string() + " while replacing it", error);
+      }
+    }
+    backups[k] = backup;
+  }
+  // 3. The renames; if one fails, the files renamed before it get their previous content back (or go, if
+  // there was none).
+  for (std::size_t k = 0; k < prepared.size(); ++k) {
+    const Status status = Commit(prepared[k]);
+    if (status.ok()) continue;
+    remove_temporaries(k + 1);
+    for (std::size_t j = 0; j < k; ++j) {
+      if (!backups[j].empty()) {
+        fs::rename(backups[j], prepared[j].path, ec);
+        if (!ec) backups[j].clear();
+      } else {
+        RemoveQuietly(prepared[j].path);
+      }
+    }
+    drop_backups();
+    return status;
+  }
+  drop_backups();
+  for (const Prepared& p : prepared) ROTOSCAN_RETURN_IF_ERROR(SyncPath(ParentOf(p.path), p.path));
+  return Status::Ok();
 }
 
 namespace {
@@ -129,27 +229,35 @@ Status WriteAllAndSync(int fd, const std::string& content, const fs::path& targe
   return Status::Ok();
 }
 
+// Writes `content` to `tmp` (the temporary sibling of `path`), every write checked and synced.
+Status WriteContent(const fs::path& tmp, const fs::path& path, const std::string& content) {
+  // An unnamed file (O_TMPFILE) while it is written: a process killed in the middle leaves nothing. It is
+  // given the temporary name only once complete. Where that is not possible (a file system without
+  // O_TMPFILE, no /proc), the named temporary file.
+  const int unnamed = ::open(ParentOf(tmp).c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
+  if (unnamed >= 0) {
+    ROTOSCAN_RETURN_IF_ERROR(WriteAllAndSync(unnamed, content, path));
+    const std::string self = "/proc/self/fd/" + std::to_string(unnamed);
+    const bool named = ::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) == 0;
+    if (::close(unnamed) != 0 && named) return ErrnoError("cannot write " + path.string(), errno);
+    if (named) return Status::Ok();
+  }
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  if (fd < 0) return ErrnoError("cannot create a temporary file beside " + path.string(), errno);
+  ROTOSCAN_RETURN_IF_ERROR(WriteAllAndSync(fd, content, path));
+  if (::close(fd) != 0) return ErrnoError("cannot write " + path.string(), errno);
+  return Status::Ok();
+}
+
 }  // namespace
 
 Status WriteFileAtomically(const fs::path& path, const std::string& content) {
-  return WriteAtomically(path, [&](const fs::path& tmp) -> Status {
-    // An unnamed file (O_TMPFILE) while it is written: a process killed in the middle leaves nothing. It is
-    // given the temporary name only once complete. Where that is not possible (a file system without
-    // O_TMPFILE, no /proc), the named temporary file.
-    const int unnamed = ::open(ParentOf(tmp).c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
-    if (unnamed >= 0) {
-      ROTOSCAN_RETURN_IF_ERROR(WriteAllAndSync(unnamed, content, path));
-      const std::string self = "/proc/self/fd/" + std::to_string(unnamed);
-      const bool named = ::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) == 0;
-      if (::close(unnamed) != 0 && named) return ErrnoError("cannot write " + path.string(), errno);
-      if (named) return Status::Ok();
-    }
-    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-    if (fd < 0) return ErrnoError("cannot create a temporary file beside " + path.string(), errno);
-    ROTOSCAN_RETURN_IF_ERROR(WriteAllAndSync(fd, content, path));
-    if (::close(fd) != 0) return ErrnoError("cannot write " + path.string(), errno);
-    return Status::Ok();
-  });
+  return WriteAtomically(path, [&](const fs::path& tmp) { return WriteContent(tmp, path, content); });
+}
+
+PendingFile FileWithContent(const fs::path& path, std::string content) {
+  auto shared = std::make_shared<const std::string>(std::move(content));
+  return {path, [path, shared](const fs::path& tmp) { return WriteContent(tmp, path, *shared); }};
 }
 
 Result<std::string> ReadFile(const fs::path& path, std::size_t max_bytes) {

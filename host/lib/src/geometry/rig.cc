@@ -169,7 +169,32 @@ Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig) {
   return WriteFileAtomically(path, text);
 }
 
+namespace {
+
+// Where `text` is not well-formed UTF-8 (YAML must be), or npos. OpenCV 4.6's YAML parser loops forever on
+// some malformed bytes (the calib.yaml fuzzer's finding: "- \xEC" items), so they never reach it.
+std::size_t InvalidUtf8At(const std::string& text) {
+  std::size_t i = 0;
+  while (i < text.size()) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    const std::size_t length = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
+    if (length == 0 || c == 0xC0 || c == 0xC1 || c > 0xF4 || i + length > text.size()) return i;
+    for (std::size_t k = 1; k < length; ++k) {
+      if ((static_cast<unsigned char>(text[i + k]) & 0xC0) != 0x80) return i;
+    }
+    if (c < 0x80 && c < 0x20 && c != '\n' && c != '\r' && c != '\t') return i;  // control bytes
+    i += length;
+  }
+  return std::string::npos;
+}
+
+}  // namespace
+
 Result<Rig> ParseRigYaml(const std::string& text, const std::string& name) {
+  if (const std::size_t at = InvalidUtf8At(text); at != std::string::npos) {
+    return CorruptDataError(name + " is not a YAML text: byte " + std::to_string(at) +
+                            " is a control character or not UTF-8");
+  }
   try {
     cv::FileStorage storage(text, cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_YAML);
     if (!storage.isOpened()) return CorruptDataError(name + " is not an OpenCV YAML file");

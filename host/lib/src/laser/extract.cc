@@ -116,6 +116,7 @@
 #include "extract_steps.h"
 #include "kernels.h"
 #include "rotoscan/core/check.h"
+#include "rotoscan/geometry/image_file.h"
 
 namespace rotoscan::laser {
 
@@ -408,13 +409,8 @@ Result<cv::Mat> ReadImage8(const std::filesystem::path& path) {
     if (std::filesystem::exists(path, ec)) return InvalidArgumentError(path.string() + " is not a regular file");
     return NotFoundError(path.string() + " does not exist");
   }
-  cv::Mat image;
-  try {
-    image = cv::imread(path.string(), cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {  // e.g. a header declaring more pixels than OpenCV allows
-    return CorruptDataError(path.string() + " cannot be decoded as an image: " + e.err);
-  }
-  if (image.empty()) return CorruptDataError(path.string() + " cannot be decoded as an image");
+  // Decoder messages (libpng's) come back in the status, never on stderr.
+  ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat image, geometry::ReadImageFile(path));
   if (image.depth() != CV_8U)
     return InvalidArgumentError(path.string() + " is not 8-bit (only 8-bit is read)");
   return image;

@@ -33,6 +33,7 @@ constexpr std::size_t kMaxBlocks = std::size_t{1} << 26;
 
 struct Sample {
   Eigen::Vector3f p, n;
+  Eigen::Vector3f view = Eigen::Vector3f::Zero();  // unit, toward the camera; zero when unknown
   float weight, radius;
   Eigen::Vector3f rgb;
   bool table = false;  // a sample of the table plane under the object (flat bottom)
@@ -205,6 +206,332 @@ struct Extracted {
   std::vector<Eigen::Vector3i> triangles;
 };
 
+// Watertight (FusionOptions::watertight). Curless & Levoy's §5 ("hole filling") sorts every voxel of the
+// volume into near the surface, seen empty, or unseen, and extracts a surface between empty and unseen as
+// well, so that the result is closed. Here:
+// - observed: a voxel with at least the trimming weight keeps its fused signed distance;
+// - seen empty: every voxel a sensor ray crossed. The rays are the points' own, from just in front of each
+//   point to its camera, and, with the flat bottom, the cameras' rays to the table top around the object
+//   (the camera sees the table wherever the object does not hide it). A ray that meets the inside of an
+//   observed surface (signed distance below -h/4) came from behind a surface (an outlier, or a table point
+//   the object hides) and carves nothing;
+// - unseen: takes the sign of the nearest observed voxel (a breadth-first sweep over the grid), so that a
+//   hole's rim continues across the hole; then the seen-empty voxels are set outside, everything under
+//   the table and on the box's faces too; unseen sheets thinner than 6 voxels are opened (set outside);
+// - the unobserved voxels are then smoothed by Jacobi sweeps of volumetric diffusion (Davis, Marschner,
+//   Garr & Levoy, "Filling holes in complex surfaces using volumetric diffusion", 3DPVT 2002), the
+//   observed ones held fixed as boundary values and the empty ones kept outside.
+// Marching cubes then runs over every cube of the box: every cube has all eight values, so every edge of
+// the surface is shared by two triangles. Colors come from the nearest observed voxel.
+constexpr uint8_t kUnseen = 0, kEmpty = 1, kObserved = 2, kTouched = 3;
+
+struct ClosedStats {
+  std::size_t point_rays = 0, table_rays = 0, discarded = 0;
+  double observed_fraction = 1.0;
+};
+
+Result<TriangleMesh> ExtractClosed(const Volume& volume, const std::vector<Sample>& samples,
+                                   const std::vector<Eigen::Vector3d>& cameras, float min_weight,
+                                   float truncation, const FusionOptions& options, int threads,
+                                   ClosedStats* stats) {
+  const Eigen::Vector3i dims = volume.voxel_dims();
+  const std::size_t nx = static_cast<std::size_t>(dims.x()), ny = static_cast<std::size_t>(dims.y()),
+                    nz = static_cast<std::size_t>(dims.z());
+  const std::size_t n = nx * ny * nz;
+  if (n > (std::size_t{1} << 28)) {
+    return InvalidArgumentError("watertight meshing needs the whole box, " + std::to_string(n) +
+                                " voxels at " + std::to_string(options.voxel_mm) +
+                                " mm, more than 2^28: use a larger voxel");
+  }
+  const float h = volume.voxel();
+  const Eigen::Vector3f& origin = volume.origin();
+  auto index = [&](std::size_t i, std::size_t j, std::size_t k) { return i + nx * (j + ny * k); };
+  std::vector<float> value(n, 0.0f);
+  std::vector<uint8_t> state(n, kUnseen);
+  std::vector<uint32_t> nearest(n, std::numeric_limits<uint32_t>::max());  // nearest observed voxel
+  std::vector<uint32_t> queue;
+  for (std::size_t k = 0; k < nz; ++k) {
+    for (std::size_t j = 0; j < ny; ++j) {
+      for (std::size_t i = 0; i < nx; ++i) {
+        const Block* b = volume.Find(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
+        if (b == nullptr) continue;
+        const auto v = static_cast<std::size_t>(LocalIndex(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k)));
+        if (!(b->weight[v] > 0)) continue;
+        // Below the trimming weight a voxel is not held fixed, but its sign still counts (the far side of a
+        // surface seen at a grazing angle is often light).
+        const std::size_t at = index(i, j, k);
+        state[at] = b->weight[v] >= min_weight ? kObserved : kTouched;
+        value[at] = std::clamp(b->sdf[v], -truncation, truncation);
+        nearest[at] = static_cast<uint32_t>(at);
+        queue.push_back(static_cast<uint32_t>(at));
+      }
+    }
+  }
+  if (queue.empty()) return NotConvergedError("fusion produced no surface (too few or too sparse points?)");
+
+  // Carving: each thread marks its own copy, merged after.
+  struct Ray {
+    Eigen::Vector3f from, direction;
+    float length;
+  };
+  std::vector<Ray> rays;
+  const float diagonal = (dims.cast<float>() * h).norm();
+  std::size_t with_view = 0;
+  for (const Sample& s : samples) with_view += s.view.squaredNorm() > 0.25f ? 1 : 0;
+  const std::size_t stride = std::max<std::size_t>(1, with_view / 400000);
+  std::size_t seen = 0;
+  for (const Sample& s : samples) {
+    if (!(s.view.squaredNorm() > 0.25f) || seen++ % stride != 0) continue;
+    rays.push_back({s.p + (truncation + h) * s.view, s.view, diagonal});
+  }
+  const std::size_t point_rays = rays.size();
+  if (options.flat_bottom && !cameras.empty()) {
+    // Up to 36 of the cameras, evenly through the scan; table points every 2 voxels, half a voxel up.
+    const std::size_t count = std::min<std::size_t>(36, cameras.size());
+    const float z = static_cast<float>(options.table_z) + 0.5f * h;
+    for (std::size_t c = 0; c < count; ++c) {
+      const Eigen::Vector3f camera = cameras[c * cameras.size() / count].cast<float>();
+      for (std::size_t j = 1; j + 1 < ny; j += 2) {
+        for (std::size_t i = 1; i + 1 < nx; i += 2) {
+          const Eigen::Vector3f q = origin + h * Eigen::Vector3f(static_cast<float>(i) + 0.5f,
+                                                                 static_cast<float>(j) + 0.5f, 0.0f);
+          const Eigen::Vector3f from(q.x(), q.y(), z);
+          const Eigen::Vector3f to = camera - from;
+          if (!(to.norm() > h)) continue;
+          rays.push_back({from, to.normalized(), to.norm()});
+        }
+      }
+    }
+  }
+  std::vector<std::vector<uint8_t>> marks(static_cast<std::size_t>(threads));
+  std::vector<std::size_t> discarded(static_cast<std::size_t>(threads), 0);
+  Parallel(threads, rays.size(), [&](int t, std::size_t begin, std::size_t end) {
+    std::vector<uint8_t>& mark = marks[static_cast<std::size_t>(t)];
+    mark.assign(n, 0);
+    std::vector<std::size_t> crossed;
+    for (std::size_t r = begin; r < end; ++r) {
+      const Ray& ray = rays[r];
+      crossed.clear();
+      bool inside = false;
+      for (float s = 0; s <= ray.length && !inside; s += 0.5f * h) {
+        const Eigen::Vector3f q = (ray.from + s * ray.direction - origin) / h;
+        if ((q.array() < 0).any() || q.x() >= static_cast<float>(nx) || q.y() >= static_cast<float>(ny) ||
+            q.z() >= static_cast<float>(nz)) {
+          break;
+        }
+        const std::size_t at = index(static_cast<std::size_t>(q.x()), static_cast<std::size_t>(q.y()),
+                                     static_cast<std::size_t>(q.z()));
+        if (state[at] == kObserved || state[at] == kTouched) {
+          // Near or behind a surface (seen well or barely): the ray came from behind one (an outlier, a
+          // table point the object hides) or grazes it; either way it proves nothing.
+          inside = value[at] < h;
+          if (state[at] == kObserved) continue;
+        }
+        crossed.push_back(at);
+      }
+      if (inside) {
+        ++discarded[static_cast<std::size_t>(t)];
+        continue;
+      }
+      for (std::size_t at : crossed) mark[at] = 1;
+    }
+  });
+
+  // The unseen voxels take the sign of the nearest observed one (6-connected breadth-first sweep).
+  for (std::size_t head = 0; head < queue.size(); ++head) {
+    const std::size_t at = queue[head];
+    const std::size_t i = at % nx, j = (at / nx) % ny, k = at / (nx * ny);
+    const std::size_t next[6] = {i > 0 ? at - 1 : at,           i + 1 < nx ? at + 1 : at,
+                                 j > 0 ? at - nx : at,          j + 1 < ny ? at + nx : at,
+                                 k > 0 ? at - nx * ny : at,     k + 1 < nz ? at + nx * ny : at};
+    for (std::size_t m : next) {
+      if (nearest[m] != std::numeric_limits<uint32_t>::max()) continue;
+      nearest[m] = nearest[at];
+      queue.push_back(static_cast<uint32_t>(m));
+    }
+  }
+  queue = {};
+  // Beyond the samples' box (by two voxels) nothing was seen: outside. A hole's continuation ends there.
+  Eigen::Vector3f seen_lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  Eigen::Vector3f seen_hi = -seen_lo;
+  for (const Sample& s : samples) {
+    seen_lo = seen_lo.cwiseMin(s.p);
+    seen_hi = seen_hi.cwiseMax(s.p);
+  }
+  const Eigen::Vector3i box_lo = ((seen_lo - origin) / h).array().floor().cast<int>() - 2;
+  const Eigen::Vector3i box_hi = ((seen_hi - origin) / h).array().floor().cast<int>() + 2;
+  const float table_z = static_cast<float>(options.table_z);
+  for (std::size_t k = 0; k < nz; ++k) {
+    const bool below = options.flat_bottom && origin.z() + (static_cast<float>(k) + 0.5f) * h < table_z;
+    for (std::size_t j = 0; j < ny; ++j) {
+      for (std::size_t i = 0; i < nx; ++i) {
+        const std::size_t at = index(i, j, k);
+        const Eigen::Vector3i c(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
+        const bool face = i == 0 || j == 0 || k == 0 || i + 1 == nx || j + 1 == ny || k + 1 == nz ||
+                          (c.array() < box_lo.array()).any() || (c.array() > box_hi.array()).any();
+        bool carved = face || below;
+        for (const auto& mark : marks) carved = carved || mark[at] != 0;
+        if (state[at] == kObserved && !face) continue;
+        if (carved) {
+          state[at] = kEmpty;
+          value[at] = truncation;
+        } else if (state[at] == kUnseen) {
+          value[at] = value[nearest[at]] < 0 ? -truncation : truncation;
+        }
+      }
+    }
+  }
+  marks.clear();
+
+  // Thin unseen sheets (the nearest-voxel sign continues a thin part, an ear, as a sheet into space nobody
+  // saw) are opened: an unobserved inside voxel with outside voxels within 3 on both sides along an axis
+  // becomes outside. Observed voxels, where a thin part really is, are left alone.
+  {
+    std::vector<uint8_t> open(n, 0);
+    const std::size_t stride_of[3] = {1, nx, nx * ny};
+    const std::size_t size_of[3] = {nx, ny, nz};
+    Parallel(threads, nz, [&](int, std::size_t k0, std::size_t k1) {
+      for (std::size_t k = k0; k < k1; ++k) {
+        for (std::size_t j = 0; j < ny; ++j) {
+          for (std::size_t i = 0; i < nx; ++i) {
+            const std::size_t at = index(i, j, k);
+            if (state[at] == kObserved || value[at] >= 0) continue;
+            const std::size_t coord[3] = {i, j, k};
+            for (int axis = 0; axis < 3 && open[at] == 0; ++axis) {
+              bool below = false, above = false;
+              for (std::size_t d = 1; d <= 3; ++d) {
+                if (!below && coord[axis] >= d && value[at - d * stride_of[axis]] > 0) below = true;
+                if (!above && coord[axis] + d < size_of[axis] && value[at + d * stride_of[axis]] > 0) above = true;
+              }
+              if (below && above) open[at] = 1;
+            }
+          }
+        }
+      }
+    });
+    for (std::size_t at = 0; at < n; ++at) {
+      if (open[at] != 0) value[at] = truncation;
+    }
+  }
+
+  // Diffusion over the unobserved voxels (Jacobi), the box's faces held outside.
+  std::vector<float> next_value = value;
+  for (int sweep = 0; sweep < options.diffusion_iterations; ++sweep) {
+    Parallel(threads, nz, [&](int, std::size_t k0, std::size_t k1) {
+      for (std::size_t k = std::max<std::size_t>(k0, 1); k < std::min(k1, nz - 1); ++k) {
+        for (std::size_t j = 1; j + 1 < ny; ++j) {
+          for (std::size_t i = 1; i + 1 < nx; ++i) {
+            const std::size_t at = index(i, j, k);
+            if (state[at] == kObserved) continue;
+            float mean = (value[at - 1] + value[at + 1] + value[at - nx] + value[at + nx] + value[at - nx * ny] +
+                          value[at + nx * ny]) /
+                         6.0f;
+            if (state[at] == kEmpty) mean = std::max(mean, 0.05f * h);
+            next_value[at] = mean;
+          }
+        }
+      }
+    });
+    std::swap(value, next_value);
+  }
+  next_value = {};
+
+  // Marching cubes over every cube of the box. Pass 1: a vertex on each crossing edge (per slab of z).
+  auto color_of = [&](std::size_t at) {
+    const std::size_t src = nearest[at];
+    const int i = static_cast<int>(src % nx), j = static_cast<int>((src / nx) % ny),
+              k = static_cast<int>(src / (nx * ny));
+    return volume.Find(i, j, k)->rgb[static_cast<std::size_t>(LocalIndex(i, j, k))];
+  };
+  std::vector<Extracted> slab(static_cast<std::size_t>(threads));
+  std::vector<std::vector<uint64_t>> slab_keys(static_cast<std::size_t>(threads));
+  std::vector<std::size_t> observed_vertices(static_cast<std::size_t>(threads), 0);
+  const std::size_t stride_axis[3] = {1, nx, nx * ny};
+  Parallel(threads, nz, [&](int t, std::size_t k0, std::size_t k1) {
+    Extracted& out = slab[static_cast<std::size_t>(t)];
+    std::vector<uint64_t>& keys = slab_keys[static_cast<std::size_t>(t)];
+    for (std::size_t k = k0; k < k1; ++k) {
+      for (std::size_t j = 0; j < ny; ++j) {
+        for (std::size_t i = 0; i < nx; ++i) {
+          const std::size_t at = index(i, j, k);
+          const float s0 = value[at];
+          const std::size_t coord[3] = {i, j, k}, size[3] = {nx, ny, nz};
+          for (int axis = 0; axis < 3; ++axis) {
+            if (coord[axis] + 1 >= size[axis]) continue;
+            const std::size_t other = at + stride_axis[axis];
+            const float s1 = value[other];
+            if ((s0 < 0) == (s1 < 0)) continue;
+            const float f = s0 / (s0 - s1);
+            Eigen::Vector3f p = volume.Centre(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
+            p[axis] += f * h;
+            const Eigen::Vector3f c = (1 - f) * color_of(at) + f * color_of(other);
+            keys.push_back(3 * static_cast<uint64_t>(at) + static_cast<uint64_t>(axis));
+            out.vertices.push_back(p.cast<double>());
+            out.colors.push_back(c.cwiseMax(0.0f).cwiseMin(1.0f).cast<double>());
+            if (state[at] == kObserved && state[other] == kObserved) ++observed_vertices[static_cast<std::size_t>(t)];
+          }
+        }
+      }
+    }
+  });
+  TriangleMesh mesh;
+  std::vector<uint64_t> keys;
+  for (std::size_t t = 0; t < slab.size(); ++t) {
+    mesh.vertices.insert(mesh.vertices.end(), slab[t].vertices.begin(), slab[t].vertices.end());
+    mesh.vertex_colors.insert(mesh.vertex_colors.end(), slab[t].colors.begin(), slab[t].colors.end());
+    keys.insert(keys.end(), slab_keys[t].begin(), slab_keys[t].end());
+    slab[t] = Extracted{};
+  }
+  slab_keys.clear();
+  if (mesh.vertices.size() >= static_cast<std::size_t>(std::numeric_limits<int>::max()))
+    return InvalidArgumentError("watertight surface too large: use a larger voxel");
+  // Pass 2: the triangles of every cube (the keys are sorted: the slabs run in order).
+  std::vector<std::vector<Eigen::Vector3i>> triangles(static_cast<std::size_t>(threads));
+  Parallel(threads, nz > 0 ? nz - 1 : 0, [&](int t, std::size_t k0, std::size_t k1) {
+    auto& out = triangles[static_cast<std::size_t>(t)];
+    for (std::size_t k = k0; k < k1; ++k) {
+      for (std::size_t j = 0; j + 1 < ny; ++j) {
+        for (std::size_t i = 0; i + 1 < nx; ++i) {
+          int cube = 0;
+          for (int c = 0; c < 8; ++c) {
+            const std::size_t at = index(i + static_cast<std::size_t>(shift[c].x()),
+                                         j + static_cast<std::size_t>(shift[c].y()),
+                                         k + static_cast<std::size_t>(shift[c].z()));
+            if (value[at] < 0) cube |= 1 << c;
+          }
+          if (cube == 0 || cube == 255) continue;
+          std::array<int, 12> vertex{};
+          for (int e = 0; e < 12; ++e) {
+            if ((edge_table[cube] & (1 << e)) == 0) continue;
+            const std::size_t at = index(i + static_cast<std::size_t>(edge_shift[e].x()),
+                                         j + static_cast<std::size_t>(edge_shift[e].y()),
+                                         k + static_cast<std::size_t>(edge_shift[e].z()));
+            const uint64_t key = 3 * static_cast<uint64_t>(at) + static_cast<uint64_t>(edge_shift[e][3]);
+            const auto found = std::lower_bound(keys.begin(), keys.end(), key);
+            vertex[static_cast<std::size_t>(e)] = static_cast<int>(found - keys.begin());
+          }
+          for (int tri = 0; tri_table[cube][tri] != -1; tri += 3) {
+            out.emplace_back(vertex[static_cast<std::size_t>(tri_table[cube][tri])],
+                             vertex[static_cast<std::size_t>(tri_table[cube][tri + 2])],
+                             vertex[static_cast<std::size_t>(tri_table[cube][tri + 1])]);
+          }
+        }
+      }
+    }
+  });
+  for (auto& part : triangles) mesh.triangles.insert(mesh.triangles.end(), part.begin(), part.end());
+  if (stats != nullptr) {
+    stats->point_rays = point_rays;
+    stats->table_rays = rays.size() - point_rays;
+    for (std::size_t d : discarded) stats->discarded += d;
+    std::size_t observed = 0;
+    for (std::size_t o : observed_vertices) observed += o;
+    stats->observed_fraction =
+        mesh.vertices.empty() ? 0.0 : static_cast<double>(observed) / static_cast<double>(mesh.vertices.size());
+  }
+  return mesh;
+}
+
 }  // namespace
 
 Status FusionOptions::Check() const {
@@ -219,6 +546,8 @@ Status FusionOptions::Check() const {
     return InvalidArgumentError("fusion min_component_fraction must be in [0, 1)");
   if (!std::isfinite(table_z)) return InvalidArgumentError("fusion table_z must be finite");
   if (threads < 0 || threads > 256) return InvalidArgumentError("threads must be 0..256");
+  if (diffusion_iterations < 0 || diffusion_iterations > 1000)
+    return InvalidArgumentError("fusion diffusion_iterations must be 0..1000");
   return Status::Ok();
 }
 
@@ -272,6 +601,7 @@ Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions
       weight *= static_cast<float>(std::clamp(cosine, 0.1, 1.0));
     }
     s.weight = weight;
+    if (has_view) s.view = cloud.views[i].normalized().cast<float>();
     const double across_steps = 0.75 * std::hypot(p.x(), p.y()) * std::abs(cloud.step_rad);
     s.radius = std::clamp(static_cast<float>(across_steps), min_radius, 4.0f * h);
     s.rgb = cloud.colors.empty() ? Eigen::Vector3f(0.8f, 0.8f, 0.8f) : cloud.colors[i].cast<float>();
@@ -281,6 +611,10 @@ Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions
     return InvalidArgumentError("fusion needs oriented normals or each point's camera; " +
                                 std::to_string(without_normal) + " of " + std::to_string(n) +
                                 " points have neither (try --method poisson)");
+  }
+  if (options.watertight && cloud.views.empty()) {
+    return InvalidArgumentError("watertight fusion needs each point's camera (a cloud.ply written by rotoscan "
+                                "process carries the camera path)");
   }
   std::vector<Sample> table;
   if (options.flat_bottom) table = TableSamples(options, samples);
@@ -390,6 +724,77 @@ Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions
   });
   const double splat_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   scope.Advance();
+
+  // Components (union-find over the triangles' vertices); the small ones go, with unused vertices.
+  auto finish = [&](TriangleMesh mesh) -> Result<TriangleMesh> {
+    std::vector<int> parent(mesh.vertices.size());
+    std::iota(parent.begin(), parent.end(), 0);
+    auto find = [&](int x) {
+      while (parent[static_cast<std::size_t>(x)] != x) {
+        parent[static_cast<std::size_t>(x)] = parent[static_cast<std::size_t>(parent[static_cast<std::size_t>(x)])];
+        x = parent[static_cast<std::size_t>(x)];
+      }
+      return x;
+    };
+    for (const Eigen::Vector3i& t : mesh.triangles) {
+      for (int c = 1; c < 3; ++c) {
+        const int a = find(t[0]), b = find(t[c]);
+        if (a != b) parent[static_cast<std::size_t>(std::max(a, b))] = std::min(a, b);
+      }
+    }
+    std::vector<std::size_t> size(mesh.vertices.size(), 0);
+    for (const Eigen::Vector3i& t : mesh.triangles) ++size[static_cast<std::size_t>(find(t[0]))];
+    const double least = options.min_component_fraction * static_cast<double>(mesh.triangles.size());
+    std::size_t removed_components = 0;
+    for (std::size_t v = 0; v < size.size(); ++v) {
+      if (size[v] > 0 && static_cast<double>(size[v]) < least) ++removed_components;
+    }
+    std::vector<int> remap(mesh.vertices.size(), -1);
+    TriangleMesh kept;
+    kept.triangles.reserve(mesh.triangles.size());
+    for (const Eigen::Vector3i& t : mesh.triangles) {
+      if (static_cast<double>(size[static_cast<std::size_t>(find(t[0]))]) < least) continue;
+      Eigen::Vector3i u;
+      for (int c = 0; c < 3; ++c) {
+        int& r = remap[static_cast<std::size_t>(t[c])];
+        if (r < 0) {
+          r = static_cast<int>(kept.vertices.size());
+          kept.vertices.push_back(mesh.vertices[static_cast<std::size_t>(t[c])]);
+          kept.vertex_colors.push_back(mesh.vertex_colors[static_cast<std::size_t>(t[c])]);
+        }
+        u[c] = r;
+      }
+      if (u[0] != u[1] && u[1] != u[2] && u[0] != u[2]) kept.triangles.push_back(u);
+    }
+    scope.Advance();
+    if (kept.triangles.empty()) return NotConvergedError("fusion produced no surface (too few or too sparse points?)");
+    if (summary != nullptr) {
+      summary->input_points = n;
+      summary->blocks = blocks.size();
+      summary->removed_components = removed_components;
+      summary->removed_triangles = mesh.triangles.size() - kept.triangles.size();
+      summary->splat_seconds = splat_seconds;
+      summary->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      summary->extract_seconds = summary->seconds - splat_seconds;
+    }
+    ROTOSCAN_LOG(kDebug) << "fusion " << options.voxel_mm << " mm: " << n << " points, " << blocks.size()
+                         << " blocks -> " << kept.vertices.size() << " vertices, " << kept.triangles.size()
+                         << " triangles";
+    return kept;
+  };
+  if (options.watertight) {
+    ClosedStats closed;
+    ROTOSCAN_ASSIGN_OR_RETURN(TriangleMesh mesh, ExtractClosed(volume, samples, cloud.cameras, min_weight,
+                                                               truncation, options, threads, &closed));
+    scope.Advance();
+    if (summary != nullptr) {
+      summary->carved_point_rays = closed.point_rays;
+      summary->carved_table_rays = closed.table_rays;
+      summary->discarded_rays = closed.discarded;
+      summary->observed_vertex_fraction = closed.observed_fraction;
+    }
+    return finish(std::move(mesh));
+  }
 
   // Marching cubes, pass 1: a vertex on each voxel's forward edges (+x, +y, +z) that crosses zero between
   // two voxels of enough weight. A crossing between values further apart than the distance can change over
@@ -505,61 +910,7 @@ Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions
   pools.clear();
   scope.Advance();
 
-  // Components (union-find over the triangles' vertices); the small ones go, with unused vertices.
-  std::vector<int> parent(mesh.vertices.size());
-  std::iota(parent.begin(), parent.end(), 0);
-  auto find = [&](int x) {
-    while (parent[static_cast<std::size_t>(x)] != x) {
-      parent[static_cast<std::size_t>(x)] = parent[static_cast<std::size_t>(parent[static_cast<std::size_t>(x)])];
-      x = parent[static_cast<std::size_t>(x)];
-    }
-    return x;
-  };
-  for (const Eigen::Vector3i& t : mesh.triangles) {
-    for (int c = 1; c < 3; ++c) {
-      const int a = find(t[0]), b = find(t[c]);
-      if (a != b) parent[static_cast<std::size_t>(std::max(a, b))] = std::min(a, b);
-    }
-  }
-  std::vector<std::size_t> size(mesh.vertices.size(), 0);
-  for (const Eigen::Vector3i& t : mesh.triangles) ++size[static_cast<std::size_t>(find(t[0]))];
-  const double least = options.min_component_fraction * static_cast<double>(mesh.triangles.size());
-  std::size_t removed_components = 0;
-  for (std::size_t v = 0; v < size.size(); ++v) {
-    if (size[v] > 0 && static_cast<double>(size[v]) < least) ++removed_components;
-  }
-  std::vector<int> remap(mesh.vertices.size(), -1);
-  TriangleMesh kept;
-  kept.triangles.reserve(mesh.triangles.size());
-  for (const Eigen::Vector3i& t : mesh.triangles) {
-    if (static_cast<double>(size[static_cast<std::size_t>(find(t[0]))]) < least) continue;
-    Eigen::Vector3i u;
-    for (int c = 0; c < 3; ++c) {
-      int& r = remap[static_cast<std::size_t>(t[c])];
-      if (r < 0) {
-        r = static_cast<int>(kept.vertices.size());
-        kept.vertices.push_back(mesh.vertices[static_cast<std::size_t>(t[c])]);
-        kept.vertex_colors.push_back(mesh.vertex_colors[static_cast<std::size_t>(t[c])]);
-      }
-      u[c] = r;
-    }
-    if (u[0] != u[1] && u[1] != u[2] && u[0] != u[2]) kept.triangles.push_back(u);
-  }
-  scope.Advance();
-  if (kept.triangles.empty()) return NotConvergedError("fusion produced no surface (too few or too sparse points?)");
-  if (summary != nullptr) {
-    summary->input_points = n;
-    summary->blocks = blocks.size();
-    summary->removed_components = removed_components;
-    summary->removed_triangles = mesh.triangles.size() - kept.triangles.size();
-    summary->splat_seconds = splat_seconds;
-    summary->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    summary->extract_seconds = summary->seconds - splat_seconds;
-  }
-  ROTOSCAN_LOG(kDebug) << "fusion " << options.voxel_mm << " mm: " << n << " points, " << blocks.size()
-                       << " blocks -> " << kept.vertices.size() << " vertices, " << kept.triangles.size()
-                       << " triangles";
-  return kept;
+  return finish(std::move(mesh));
 }
 
 }  // namespace rotoscan::mesh

@@ -1,6 +1,7 @@
 #include <algorithm>
 #include <chrono>
 #include <limits>
+#include <memory>
 #include <string>
 #include <thread>
 
@@ -42,10 +43,15 @@ ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud) {
   if (cloud.scan.known) {
     out.step_rad = cloud.scan.step_rad;
     out.views.reserve(cloud.size());
+    std::vector<int32_t> steps;
     for (const cloud::CloudPoint& p : cloud.points) {
       const Eigen::Vector3d to_camera = cloud.scan.CameraAtStep(p.step) - p.position_in_table.cast<double>();
       out.views.push_back(to_camera.norm() > 0 ? to_camera.normalized() : Eigen::Vector3d::Zero());
+      if (steps.empty() || steps.back() != p.step) steps.push_back(p.step);
     }
+    std::sort(steps.begin(), steps.end());
+    steps.erase(std::unique(steps.begin(), steps.end()), steps.end());
+    for (int32_t step : steps) out.cameras.push_back(cloud.scan.CameraAtStep(step));
   }
   return out;
 }
@@ -196,7 +202,17 @@ Status CheckMeshPath(const fs::path& path) {
   return Status::Ok();
 }
 
-Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
+std::vector<fs::path> MeshFilePaths(const fs::path& path, const TriangleMesh* mesh) {
+  std::vector<fs::path> paths = {path};
+  if (path.extension() == ".obj" && (mesh == nullptr || !mesh->vertex_colors.empty())) {
+    const fs::path stem = path.parent_path() / path.stem();
+    paths.push_back(fs::path(stem.string() + ".mtl"));
+    paths.push_back(fs::path(stem.string() + "_texture.png"));
+  }
+  return paths;
+}
+
+Result<std::vector<PendingFile>> MeshFiles(const fs::path& path, const TriangleMesh& mesh) {
   static QuietOpen3d quiet;
   ROTOSCAN_RETURN_IF_ERROR(CheckMeshPath(path));
   const std::string ext = path.extension().string();
@@ -204,16 +220,30 @@ Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
     return InvalidArgumentError("refusing to write an empty mesh");
   if (ext == ".glb") {
     ROTOSCAN_ASSIGN_OR_RETURN(std::string bytes, EncodeGlb(mesh));
-    return WriteFileAtomically(path, bytes);
+    return std::vector<PendingFile>{FileWithContent(path, std::move(bytes))};
   }
-  open3d::geometry::TriangleMesh o3d = ToOpen3d(mesh);
-  if (ext == ".stl") o3d.ComputeTriangleNormals();
-  return WriteAtomically(path, [&](const fs::path& tmp) -> Status {
+  if (ext == ".obj") {
+    const std::vector<fs::path> paths = MeshFilePaths(path, &mesh);
+    const std::string mtl = paths.size() > 1 ? paths[1].filename().string() : "";
+    const std::string texture = paths.size() > 2 ? paths[2].filename().string() : "";
+    ROTOSCAN_ASSIGN_OR_RETURN(ObjWithAtlas obj, EncodeObjWithAtlas(mesh, mtl, texture));
+    std::vector<PendingFile> files = {FileWithContent(path, std::move(obj.obj))};
+    if (paths.size() > 2) {
+      files.push_back(FileWithContent(paths[1], std::move(obj.mtl)));
+      ROTOSCAN_ASSIGN_OR_RETURN(PendingFile png, PngFile(paths[2], obj.texture));
+      files.push_back(std::move(png));
+    }
+    return files;
+  }
+  auto o3d = std::make_shared<open3d::geometry::TriangleMesh>(ToOpen3d(mesh));
+  if (ext == ".stl") o3d->ComputeTriangleNormals();
+  const bool colors = !mesh.vertex_colors.empty();
+  PendingFile file{path, [path, ext, o3d, colors](const fs::path& tmp) -> Status {
     // Open3D picks the format by extension: write beside with the real extension, then move into place.
     const fs::path with_ext = fs::path(tmp.string() + ext);
-    const bool ok = open3d::io::WriteTriangleMesh(with_ext.string(), o3d, /*write_ascii=*/false,
+    const bool ok = open3d::io::WriteTriangleMesh(with_ext.string(), *o3d, /*write_ascii=*/false,
                                                   /*compressed=*/false, /*write_vertex_normals=*/false,
-                                                  /*write_vertex_colors=*/!mesh.vertex_colors.empty(),
+                                                  /*write_vertex_colors=*/colors,
                                                   /*write_triangle_uvs=*/false, /*print_progress=*/false);
     std::error_code ec;
     if (!ok) {
@@ -224,15 +254,21 @@ Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
     // read the file back and compare before it may replace the target.
     open3d::geometry::TriangleMesh back;
     const bool read_back = open3d::io::ReadTriangleMesh(with_ext.string(), back);
-    if (!read_back || back.triangles_.size() != o3d.triangles_.size() ||
-        (ext != ".stl" && back.vertices_.size() != o3d.vertices_.size())) {
+    if (!read_back || back.triangles_.size() != o3d->triangles_.size() ||
+        (ext != ".stl" && back.vertices_.size() != o3d->vertices_.size())) {
       fs::remove(with_ext, ec);
       return IoError("cannot write mesh " + path.string() + ": the file written is incomplete (disk full?)");
     }
     fs::rename(with_ext, tmp, ec);
     if (ec) return IoError("cannot move " + with_ext.string() + ": " + ec.message());
     return Status::Ok();
-  });
+  }};
+  return std::vector<PendingFile>{std::move(file)};
+}
+
+Status WriteMesh(const fs::path& path, const TriangleMesh& mesh) {
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<PendingFile> files, MeshFiles(path, mesh));
+  return WriteFilesTogether(files);
 }
 
 Result<TriangleMesh> ReadMesh(const fs::path& path) {

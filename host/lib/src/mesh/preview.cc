@@ -203,15 +203,25 @@ Result<cv::Mat> RenderPointPreviewSheet(const ColoredPoints& cloud, const Previe
   return Sheet(options, [&](const PreviewOptions& one) { return RenderPointPreview(cloud, one); });
 }
 
-Status WritePng(const std::filesystem::path& path, const cv::Mat& image) {
-  if (image.empty()) return InvalidArgumentError("refusing to write an empty image to " + path.string());
+Result<std::string> EncodePng(const cv::Mat& image, const std::string& name) {
+  if (image.empty()) return InvalidArgumentError("refusing to write an empty image to " + name);
   std::vector<uchar> bytes;
   try {
     if (!cv::imencode(".png", image, bytes)) return InternalError("PNG encoding failed");
   } catch (const cv::Exception& e) {
-    return InvalidArgumentError("cannot encode " + path.string() + " as PNG: " + e.msg);
+    return InvalidArgumentError("cannot encode " + name + " as PNG: " + e.msg);
   }
-  return WriteFileAtomically(path, std::string(bytes.begin(), bytes.end()));
+  return std::string(bytes.begin(), bytes.end());
+}
+
+Result<PendingFile> PngFile(const std::filesystem::path& path, const cv::Mat& image) {
+  ROTOSCAN_ASSIGN_OR_RETURN(std::string bytes, EncodePng(image, path.string()));
+  return FileWithContent(path, std::move(bytes));
+}
+
+Status WritePng(const std::filesystem::path& path, const cv::Mat& image) {
+  ROTOSCAN_ASSIGN_OR_RETURN(PendingFile file, PngFile(path, image));
+  return WriteFilesTogether({file});
 }
 
 }  // namespace rotoscan::mesh

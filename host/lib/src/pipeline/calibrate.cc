@@ -393,11 +393,14 @@ Result<BundleCalibration> CalibrateFromBundles(const std::vector<std::filesystem
 
 Status WriteBundleCalibration(const BundleCalibration& result, const std::filesystem::path& calib_yaml,
                               const std::filesystem::path& report_json) {
+  // calib.yaml and the report are committed together: a failure leaves both as they were.
+  Result<std::string> yaml = calib::EncodeCalibrationYaml(result.calibration, calib_yaml.string());
+  if (!yaml.ok()) return yaml.status();
+  std::vector<PendingFile> files = {FileWithContent(calib_yaml, std::move(*yaml))};
   if (!report_json.empty()) {
-    ROTOSCAN_RETURN_IF_ERROR(
-        WriteFileAtomically(report_json, calib::SummaryToJson(result.calibration.summary)));
+    files.push_back(FileWithContent(report_json, calib::SummaryToJson(result.calibration.summary)));
   }
-  return calib::WriteCalibrationYaml(calib_yaml, result.calibration);
+  return WriteFilesTogether(files);
 }
 
 std::string FormatCalibrationSummary(const BundleCalibration& result) {

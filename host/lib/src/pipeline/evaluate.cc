@@ -344,6 +344,14 @@ Eigen::Vector3f InterpolatedColor(const bundle::TruthMesh& mesh, const Closest& 
   return color;
 }
 
+double CoverageRadius(const bundle::TruthMesh& mesh, const EvaluationViews& views, const EvaluateOptions& o) {
+  if (o.coverage_radius_mm > 0) return o.coverage_radius_mm;
+  double r_max = 0;
+  for (const Eigen::Vector3f& v : mesh.vertices)
+    r_max = std::max(r_max, std::hypot(static_cast<double>(v.x()), static_cast<double>(v.y())));
+  return std::max(0.5, 0.6 * r_max * views.step_rad);
+}
+
 }  // namespace
 
 Status EvaluateOptions::Check() const {
@@ -554,6 +562,70 @@ Result<EvaluationReport> EvaluateCloud(const cloud::PointCloud& cloud, const Tru
   return report;
 }
 
+Result<TruthToMeshStats> EvaluateTruthToMesh(const std::vector<Eigen::Vector3f>& vertices,
+                                             const std::vector<Eigen::Vector3i>& triangles,
+                                             const TruthSurface& truth, const EvaluationViews& views,
+                                             const EvaluateOptions& options, Progress* progress) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  const bundle::TruthMesh& mesh = truth.mesh;
+  if (vertices.empty() || triangles.empty()) return InvalidArgumentError("the mesh has no triangles");
+  for (const Eigen::Vector3i& t : triangles) {
+    if (t.minCoeff() < 0 || static_cast<size_t>(t.maxCoeff()) >= vertices.size())
+      return InvalidArgumentError("the mesh has a triangle with a vertex index out of range");
+  }
+  for (const Eigen::Vector3f& v : vertices) {
+    if (!v.allFinite()) return InvalidArgumentError("the mesh has a non-finite vertex");
+  }
+  if (mesh.faces.empty()) return InvalidArgumentError("the true mesh has no faces");
+  for (const Eigen::Vector3i& f : mesh.faces) {
+    if (f.minCoeff() < 0 || static_cast<size_t>(f.maxCoeff()) >= mesh.vertices.size())
+      return InvalidArgumentError("the true mesh has a face with a vertex index out of range");
+  }
+  if (views.cam_from_table.empty()) return InvalidArgumentError("no views to define the visible surface");
+  ROTOSCAN_RETURN_IF_ERROR(views.camera.Validate());
+  const int threads = ThreadCount(options.threads);
+  TruthToMeshStats stats;
+  double area_per_sample = 0;
+  size_t all_samples = 0;
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<Sample> samples, SampleSurface(mesh, options, &all_samples, &area_per_sample));
+  Occluder occluder;
+  ROTOSCAN_RETURN_IF_ERROR(occluder.Build(mesh));
+  ROTOSCAN_RETURN_IF_ERROR(MarkVisible(occluder, views, options, samples, progress));
+  stats.radius_mm = CoverageRadius(mesh, views, options);
+  // The visible samples as a "cloud", against the scanned mesh as the surface.
+  cloud::PointCloud visible;
+  for (const Sample& s : samples) {
+    if (!s.visible) continue;
+    cloud::CloudPoint p;
+    p.position_in_table = s.point;
+    visible.points.push_back(p);
+  }
+  stats.visible_samples = visible.size();
+  stats.visible_area_mm2 = static_cast<double>(visible.size()) * area_per_sample;
+  if (visible.empty()) return stats;
+  bundle::TruthMesh scanned;
+  scanned.vertices = vertices;
+  scanned.faces = triangles;
+  std::unique_ptr<RaycastingScene> scene = BuildScene(scanned, threads);
+  std::vector<double> distance(visible.size());
+  size_t far = 0;
+  ProgressScope scope(progress, "truth to mesh", visible.size());
+  for (size_t begin = 0; begin < visible.size(); begin += kChunk) {
+    if (scope.Cancelled()) return CancelledError("evaluation cancelled");
+    const size_t end = std::min(visible.size(), begin + kChunk);
+    const std::vector<Closest> closest = ClosestPoints(*scene, visible, begin, end, threads);
+    for (size_t i = begin; i < end; ++i) {
+      distance[i] = (visible.points[i].position_in_table - closest[i - begin].point).cast<double>().norm();
+      far += distance[i] > stats.radius_mm ? 1 : 0;
+    }
+    scope.Advance(end - begin);
+  }
+  stats.distance = Stats(std::move(distance));
+  stats.hole_fraction = static_cast<double>(far) / static_cast<double>(visible.size());
+  stats.hole_area_mm2 = static_cast<double>(far) * area_per_sample;
+  return stats;
+}
+
 Result<TruthSurface> LoadTruthSurface(const std::filesystem::path& bundle_dir,
                                       const std::filesystem::path& scene_path) {
   const std::filesystem::path mesh_path = bundle::TruthMeshPath(bundle_dir);
@@ -668,6 +740,15 @@ std::string EvaluationJson(const EvaluationReport& r) {
                    {"left", c.left},
                    {"right", c.right},
                    {"both", c.both}};
+  if (r.has_truth_to_mesh) {
+    const TruthToMeshStats& m = r.truth_to_mesh;
+    j["truth_to_mesh"] = {{"radius_mm", m.radius_mm},
+                          {"visible_samples", m.visible_samples},
+                          {"visible_area_mm2", m.visible_area_mm2},
+                          {"distance", distance(m.distance)},
+                          {"hole_fraction", m.hole_fraction},
+                          {"hole_area_mm2", m.hole_area_mm2}};
+  }
   if (r.has_color) {
     const ColorStats& k = r.color;
     j["color"] = {{"truth", k.truth_source},
@@ -721,6 +802,15 @@ std::string EvaluationSummary(const EvaluationReport& r) {
     out += line;
   } else {
     out += "color: not measured (the truth has no colors)\n";
+  }
+  if (r.has_truth_to_mesh) {
+    const TruthToMeshStats& m = r.truth_to_mesh;
+    std::snprintf(line, sizeof(line),
+                  "truth to mesh: %zu visible samples (%.0f mm^2): median=%.4f mm p95=%.4f mm max=%.3f mm; holes: "
+                  "%.4f of the visible area (%.1f mm^2) is farther than %.2f mm from the mesh\n",
+                  m.visible_samples, m.visible_area_mm2, m.distance.median_mm, m.distance.p95_mm, m.distance.max_mm,
+                  m.hole_fraction, m.hole_area_mm2, m.radius_mm);
+    out += line;
   }
   return out;
 }

@@ -11,6 +11,7 @@
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/calib/charuco.h"
 #include "rotoscan/core/file.h"
+#include "rotoscan/geometry/image_file.h"
 #include "rotoscan/geometry/rigid.h"
 
 namespace rotoscan::sim::internal {
@@ -109,13 +110,9 @@ float Bilinear(const cv::Mat& tex, float x, float y, int channel) {
 Result<cv::Mat> LoadTexture(const fs::path& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return NotFoundError("texture " + path.string() + " not found");
-  cv::Mat image;
-  try {
-    image = cv::imread(path.string(), cv::IMREAD_COLOR);
-  } catch (const cv::Exception& e) {
-    return CorruptDataError("texture " + path.string() + " does not decode: " + e.err);
-  }
-  if (image.empty()) return CorruptDataError("texture " + path.string() + " does not decode");
+  Result<cv::Mat> decoded = geometry::ReadImageFile(path, geometry::ImageRead::kColor);
+  if (!decoded.ok()) return CorruptDataError("texture " + decoded.status().message());
+  const cv::Mat image = std::move(*decoded);
   cv::Mat texture;
   image.convertTo(texture, CV_32FC3, 1.0 / 255.0);
   return texture;

@@ -105,6 +105,10 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   if (!(options.table_slip_deg >= 0.0) || !(options.table_slip_deg <= 45.0)) {
     return InvalidArgumentError("table slip must be in [0, 45] degrees");
   }
+  if (!(options.step_deg >= 0.0) || !(options.step_deg <= 360.0)) {
+    return InvalidArgumentError("table step must be in (0, 360] degrees (0: the scene's)");
+  }
+  if (options.step_deg > 0.0) scene.rig.step_angle_rad = options.step_deg * 3.14159265358979323846 / 180.0;
   if (options.table_slip_deg > 0.0 && kind == SimulateKind::kCheckerboard) {
     return InvalidArgumentError("table slip needs a table: the hand-held checkerboard kind has none");
   }
@@ -226,7 +230,8 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   uint64_t hash = 14695981039346656037ull;
   const std::string what = scene.source + "|kind " + std::to_string(static_cast<int>(kind)) + "|steps " +
                            std::to_string(steps) + "|truth " + (options.truth ? "1" : "0") +
-                           (options.placement != 0 ? "|placement " + std::to_string(options.placement) : "");
+                           (options.placement != 0 ? "|placement " + std::to_string(options.placement) : "") +
+                           (options.step_deg > 0.0 ? "|step " + std::to_string(options.step_deg) : "");
   for (const char c : what) hash = (hash ^ static_cast<unsigned char>(c)) * 1099511628211ull;
   char hash_text[17];
   std::snprintf(hash_text, sizeof(hash_text), "%016llx", static_cast<unsigned long long>(hash));

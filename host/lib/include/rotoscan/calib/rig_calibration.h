@@ -219,6 +219,8 @@ RigCalibrationSummary Evaluate(const CalibrationData& data, const RigEstimate& e
 // per_view_rms_px, per_view_names, per_view_table_angle_offset_deg, point_std_mm, point_std_max_mm,
 // report_notes, laser_left_rms_mm, laser_right_rms_mm, axis_fit_rms_mm, angle_scale, std_* ...). Atomic.
 Status WriteCalibrationYaml(const std::filesystem::path& path, const RigCalibration& calibration);
+// The same YAML text, for writing it together with other files; `name` is for the messages.
+Result<std::string> EncodeCalibrationYaml(const RigCalibration& calibration, const std::string& name);
 // The report as JSON (for --report).
 std::string SummaryToJson(const RigCalibrationSummary& summary);
 

@@ -24,6 +24,22 @@ Status WriteAtomically(const std::filesystem::path& path,
 // Writes `content` to `path` atomically (every write checked, fsynced before the rename).
 Status WriteFileAtomically(const std::filesystem::path& path, const std::string& content);
 
+// One file of a set written together: `write` fills the temporary path it is given (as for
+// WriteAtomically).
+struct PendingFile {
+  std::filesystem::path path;
+  std::function<Status(const std::filesystem::path& temporary_path)> write;
+};
+// A pending file with this content.
+PendingFile FileWithContent(const std::filesystem::path& path, std::string content);
+
+// Several files committed together (a mesh and its preview; an OBJ, its material and its texture): every
+// file is written to its temporary sibling and synced first, and only when all succeeded are they renamed
+// into place, one after the other. If a rename fails, the targets already renamed get their previous
+// content back (kept meanwhile under a hard link) or are removed if they had none, so the previous set
+// stays whole. Between two renames the set is mixed only if the process dies there.
+Status WriteFilesTogether(const std::vector<PendingFile>& files);
+
 // Reads a whole file; kNotFound if it does not exist, kIoError if it cannot be read, kInvalidArgument
 // if it is larger than `max_bytes` or not a regular file.
 Result<std::string> ReadFile(const std::filesystem::path& path, std::size_t max_bytes = std::size_t{1} << 30);

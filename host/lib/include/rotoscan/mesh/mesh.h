@@ -10,6 +10,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -17,6 +18,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "rotoscan/cloud/cloud.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/core/progress.h"
 #include "rotoscan/core/status.h"
 
@@ -30,6 +32,9 @@ struct ColoredPoints {
   std::vector<Eigen::Vector3d> views;    // empty, or one per point: unit, from the point toward its camera
   std::vector<float> quality;            // empty, or one per point in 0..1
   double step_rad = 0.0;                 // the turn between table steps (0: unknown); sets sample footprints
+  // Empty, or the camera's positions during the scan (table frame, mm; one per table step that has points):
+  // the watertight fusion carves the table top the cameras saw around the object.
+  std::vector<Eigen::Vector3d> cameras;
 };
 
 // A scan's cloud as meshing input: positions, normals (zero ones are estimated), colors, quality and, when
@@ -56,6 +61,11 @@ struct FusionOptions {
   double min_component_fraction = 0.01;  // drop components with fewer triangles than this x the total
   bool flat_bottom = true;           // close the bottom with the table plane (z = table_z) under the object
   double table_z = 0.0;              // mm, the table top in the table frame
+  // A closed surface (fusion.cc, "Watertight"): the space each sensor ray crossed is carved empty, what no
+  // ray reached counts as inside, the unobserved voxels are smoothed by diffusion, and marching cubes runs
+  // over the whole box. Needs each point's camera (views) and the flat bottom.
+  bool watertight = false;
+  int diffusion_iterations = 12;     // Jacobi sweeps over the unobserved voxels (watertight only)
   int threads = 2;                   // 0: all cores
   Status Check() const;
 };
@@ -65,6 +75,10 @@ struct FusionSummary {
   std::size_t blocks = 0;               // allocated 8^3 blocks
   std::size_t removed_components = 0;
   std::size_t removed_triangles = 0;
+  // Watertight only: rays carved (from the points to their cameras; from the table top to the cameras) and
+  // the share of the surface's vertices on observed voxels (the rest fill holes).
+  std::size_t carved_point_rays = 0, carved_table_rays = 0, discarded_rays = 0;
+  double observed_vertex_fraction = 1.0;
   double splat_seconds = 0.0;
   double extract_seconds = 0.0;  // marching cubes, components, colors
   double seconds = 0.0;
@@ -100,10 +114,31 @@ Result<TriangleMesh> PoissonReconstruct(const ColoredPoints& cloud, const Poisso
 
 // kInvalidArgument unless `path` ends in .ply, .obj, .stl or .glb (checked before any work).
 Status CheckMeshPath(const std::filesystem::path& path);
-// Writes .ply (binary, vertex colors), .obj (vertex colors as the common "v x y z r g b" extension), .stl
-// (binary) or .glb (glTF 2.0 binary, our own writer: metres, +Y up, vertex normals and colors) by the
-// extension of `path`, atomically.
+// The files a mesh at `path` is written as: `path` itself, and for an .obj with colors its material
+// <stem>.mtl and texture <stem>_texture.png beside it (for CheckOutputPaths before the work).
+std::vector<std::filesystem::path> MeshFilePaths(const std::filesystem::path& path, const TriangleMesh* mesh = nullptr);
+// The files of `mesh` at `path`, to be committed together (WriteFilesTogether), by the extension: .ply
+// (binary, vertex colors), .obj (text: vertex colors as the common "v x y z r g b" extension, and a
+// texture atlas made from them with per-corner UVs, material and PNG beside: ObjWithAtlas), .stl (binary)
+// or .glb (glTF 2.0 binary, our own writer: metres, +Y up, vertex normals and colors). Each is checked
+// (Open3D's writers are read back) before it may replace anything.
+Result<std::vector<PendingFile>> MeshFiles(const std::filesystem::path& path, const TriangleMesh& mesh);
+// MeshFiles, committed together.
 Status WriteMesh(const std::filesystem::path& path, const TriangleMesh& mesh);
+
+// An OBJ with a texture atlas baked from the vertex colors (obj.cc). Every triangle gets its own 2 x 2
+// texels; its corners' UVs sit on the centres of three of them, which hold the corners' colors, and the
+// fourth holds c1 + c2 - c0, so that bilinear filtering inside the triangle reproduces the linear
+// interpolation of the vertex colors exactly (clamped to 0..255). The atlas is as square as the triangle
+// count allows (at most 8192 x 8192 texels: 16.7 M triangles). Blender, MeshLab and Open3D read the
+// `vt`/`map_Kd` texture; MeshLab and Open3D also the vertex colors.
+struct ObjWithAtlas {
+  std::string obj;  // refers to `mtl_name`
+  std::string mtl;  // refers to `texture_name`
+  cv::Mat texture;  // BGR, 8-bit
+};
+Result<ObjWithAtlas> EncodeObjWithAtlas(const TriangleMesh& mesh, const std::string& mtl_name,
+                                        const std::string& texture_name);
 // Reads any of those (through Open3D); a .glb comes back in the table frame's millimetres, +Z up.
 Result<TriangleMesh> ReadMesh(const std::filesystem::path& path);
 
@@ -142,5 +177,8 @@ Result<cv::Mat> RenderPointPreviewSheet(const ColoredPoints& cloud, const Previe
 
 // Encodes `image` as PNG and writes it atomically.
 Status WritePng(const std::filesystem::path& path, const cv::Mat& image);
+// The same as a file to commit with others (encoded now: an encoding error comes before any write).
+Result<PendingFile> PngFile(const std::filesystem::path& path, const cv::Mat& image);
+Result<std::string> EncodePng(const cv::Mat& image, const std::string& name);
 
 }  // namespace rotoscan::mesh

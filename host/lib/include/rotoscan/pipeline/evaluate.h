@@ -115,12 +115,26 @@ struct ColorStats {
   std::string truth_source;
 };
 
+// Truth -> mesh, for a scanned mesh: the visible true surface's samples (those of the coverage) against
+// the mesh's triangles (exact point-to-triangle distance, so a hole counts by its area, not by how many
+// vertices are missing near it).
+struct TruthToMeshStats {
+  double radius_mm = 0;          // the coverage radius
+  size_t visible_samples = 0;
+  double visible_area_mm2 = 0;
+  DistanceStats distance;        // of each visible sample to the nearest point of the mesh
+  double hole_fraction = 0;      // share of the visible area farther than radius_mm from the mesh
+  double hole_area_mm2 = 0;
+};
+
 struct EvaluationReport {
   size_t points = 0, left_points = 0, right_points = 0;
   DistanceStats distance, distance_left, distance_right;
   CoverageStats coverage;
   bool has_color = false;  // the truth has colors
   ColorStats color;
+  bool has_truth_to_mesh = false;  // set by the caller from EvaluateTruthToMesh, for a mesh
+  TruthToMeshStats truth_to_mesh;
 };
 
 // Evaluates `cloud` against `truth` seen from `views`. kInvalidArgument for an empty cloud, a mesh
@@ -128,6 +142,13 @@ struct EvaluationReport {
 Result<EvaluationReport> EvaluateCloud(const cloud::PointCloud& cloud, const TruthSurface& truth,
                                        const EvaluationViews& views, const EvaluateOptions& options = {},
                                        Progress* progress = nullptr);
+
+// The truth -> mesh figures of a scanned mesh (vertices in the table frame, mm; triangles index them).
+// kInvalidArgument for an empty mesh, a bad index, no views or bad options.
+Result<TruthToMeshStats> EvaluateTruthToMesh(const std::vector<Eigen::Vector3f>& vertices,
+                                             const std::vector<Eigen::Vector3i>& triangles,
+                                             const TruthSurface& truth, const EvaluationViews& views,
+                                             const EvaluateOptions& options = {}, Progress* progress = nullptr);
 
 // The truth of a virtual-scanner bundle: truth/object.ply, and with `scene_path` (the scene JSON the bundle
 // was rendered from) the scene's exact albedo (textures, patterns). kNotFound naming the file when truth/

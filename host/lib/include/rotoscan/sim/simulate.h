@@ -54,6 +54,7 @@ struct SimulateOptions {
   // Scans: the object's placement on the table (Scene::placements, PlaceScene); recorded in bundle.json and,
   // with the truth, as truth/placement.csv.
   int placement = 0;
+  double step_deg = 0.0;           // > 0: the table's step for this run instead of the scene's (scans)
 };
 
 Status Simulate(const Scene& scene, const SimulateOptions& options, Progress* progress);
