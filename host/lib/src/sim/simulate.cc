@@ -108,7 +108,6 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   if (!(options.step_deg >= 0.0) || !(options.step_deg <= 360.0)) {
     return InvalidArgumentError("table step must be in (0, 360] degrees (0: the scene's)");
   }
-  if (options.step_deg > 0.0) scene.rig.step_angle_rad = options.step_deg * 3.14159265358979323846 / 180.0;
   if (options.table_slip_deg > 0.0 && kind == SimulateKind::kCheckerboard) {
     return InvalidArgumentError("table slip needs a table: the hand-held checkerboard kind has none");
   }
@@ -119,6 +118,8 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
   if (kind == SimulateKind::kScan) {
     ROTOSCAN_ASSIGN_OR_RETURN(scene, PlaceScene(input_scene, options.placement, &table_from_reference));
   }
+  // After the placement, which starts again from the input scene.
+  if (options.step_deg > 0.0) scene.rig.step_angle_rad = options.step_deg * 3.14159265358979323846 / 180.0;
   if (steps == 0) {
     steps = kind == SimulateKind::kScan                ? scene.steps
             : kind == SimulateKind::kCalibrationObject ? 1
