@@ -6,6 +6,7 @@
 // rotoscan devices: the boards and cameras this build can open, and those it finds attached.
 #include <chrono>
 #include <condition_variable>
+#include <filesystem>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -19,6 +20,7 @@
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/capture/scan.h"
 #include "rotoscan/cloud/cloud.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rig.h"
 #include "rotoscan/pipeline/process.h"
 #include "rotoscan/sim/scene.h"
@@ -118,6 +120,14 @@ Result<bundle::TargetKind> TargetOf(const std::string& kind) {
 }  // namespace
 
 int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
+  // Output paths before any device is opened (issue 20): the bundle's directory, and the live cloud.
+  std::vector<OutputPath> outputs{{o.out, "--out", OutputKind::kDirectory}};
+  if (o.live) outputs.push_back({o.cloud.empty() ? o.out + ".ply" : o.cloud, o.cloud.empty() ? "--out (.ply)" : "--cloud"});
+  std::vector<std::filesystem::path> inputs;
+  for (const std::string& input : {o.scene, o.calib}) {
+    if (!input.empty()) inputs.push_back(input);
+  }
+  if (const Status paths = CheckOutputPaths(outputs, inputs); !paths.ok()) return ReportStatus(context, "scan", paths);
   auto timing = capture::ParseTiming(o.timing);
   if (!timing.ok()) return ReportStatus(context, "scan", timing.status());
   auto target = TargetOf(o.kind);

@@ -541,5 +541,33 @@ TEST_F(HostileTest, MessagesSayWhatIsWrong) {
   EXPECT_EQ(read->size(), 10u);
 }
 
+// The commands of acquisition, placements and the device meet the same rules: a clear error naming the
+// option or file, exit 1 or 2, nothing left behind, and output paths checked before a board is opened
+// (`scan --out nodir/b` used to create nodir/ and start scanning).
+TEST_F(HostileTest, ScanMergeAndDeviceRefuseBadInput) {
+  const std::string scene = Shared("scene.json").string();
+  const std::string cloud = Shared("cloud.ply").string();
+  ExpectRefused({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene, "--out", P("nodir/b")},
+                kExitFailure, "nodir");
+  ExpectRefused({"scan", "--device", "nosuch", "--camera", "virtual", "--scene", scene, "--out", P("b")},
+                kExitFailure, "unknown board 'nosuch'");
+  ExpectRefused({"scan", "--device", "sim", "--camera", "nosuch:x", "--scene", scene, "--out", P("b")},
+                kExitFailure, "unknown camera 'nosuch'");
+  ExpectRefused({"scan", "--device", "sim", "--camera", "virtual", "--scene", P("missing.json"), "--out", P("b")},
+                kExitFailure, "missing.json");
+  ExpectRefused({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene, "--calib", P("missing.yaml"),
+                 "--out", P("b"), "--live"},
+                kExitFailure, "missing.yaml");
+  ExpectRefused({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene, "--out", scene},
+                kExitFailure, "--out");
+  WriteText(dir_ / "bad.ply", "garbage");
+  ExpectRefused({"merge", P("bad.ply"), cloud, "--out", P("m.ply")}, kExitFailure, "bad.ply");
+  ExpectRefused({"merge", cloud, "--out", P("m.ply")}, kExitUsage, "at least two clouds");
+  ExpectRefused({"merge", cloud, P("bad.ply"), "--out", P("bad.ply")}, kExitFailure, "is also an input");
+  ExpectRefused({"merge", cloud, P("missing.ply"), "--out", P("m.ply")}, kExitFailure, "missing.ply");
+  ExpectRefused({"merge", cloud, cloud, "--out", P("m.ply"), "--hint", "1,2"}, kExitFailure, "hint");
+  ExpectRefused({"device", "flash", P("missing.bin")}, kExitFailure, "missing.bin");
+}
+
 }  // namespace
 }  // namespace rotoscan::cli
