@@ -26,14 +26,14 @@ TEST(CliTest, HelpListsEveryCommand) {
   const CliRun r = Call({"--help"});
   EXPECT_EQ(r.code, kExitOk);
   for (const char* command : {"demo", "simulate", "calibrate", "extract", "process", "mesh", "evaluate",
-                              "scan", "device", "bench"}) {
+                              "scan", "devices", "device", "merge", "bench"}) {
     EXPECT_NE(r.out.find(command), std::string::npos) << command << " missing from:\n" << r.out;
   }
 }
 
 TEST(CliTest, EveryCommandHasHelp) {
   for (const char* command : {"demo", "simulate", "calibrate", "extract", "process", "mesh", "evaluate",
-                              "scan", "device", "bench"}) {
+                              "scan", "devices", "device", "merge", "bench"}) {
     const CliRun r = Call({command, "--help"});
     EXPECT_EQ(r.code, kExitOk) << command;
     EXPECT_NE(r.out.find(command), std::string::npos) << r.out;
