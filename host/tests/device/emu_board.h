@@ -3,8 +3,14 @@
 // transactions (retried while the image NAKs), what it reads comes out as IN transactions, and Advance runs
 // the emulated CPU. Boot() powers it on and enumerates it as the kernel would before libusb sees it;
 // Reenumerate() does it again after a re-plug (a self-powered board: the image keeps running).
+// Advance() runs the emulated CPU up to the caller's time counted in cycles since Boot(), not for a number of
+// cycles: a transfer runs the CPU itself while the image NAKs (usb_host's retries), an enumeration runs it
+// through the control transfers, and a run overshoots its end by the instruction or exception entry under
+// way; all of that is taken off the next Advance() calls, so the emulated time stays the caller's time (at
+// most one transfer ahead of it) instead of drifting ahead.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -18,6 +24,16 @@
 
 namespace rotoscan::device::testing {
 
+// The image's pins (firmware/port/stm32f411/board.h).
+struct EmuPin {
+  uint8_t port;
+  uint8_t pin;
+  bool Is(const fw_emu::PinEdge& e) const { return e.port == port && e.pin == pin; }
+};
+constexpr EmuPin kEmuStepPin{fw_emu::kPortB, 4}, kEmuDirPin{fw_emu::kPortB, 5},
+    kEmuLaserLeftPin{fw_emu::kPortB, 13}, kEmuLaserRightPin{fw_emu::kPortB, 14},
+    kEmuTriggerPin{fw_emu::kPortA, 15};
+
 class EmuBoard : public VirtualBoard {
  public:
   explicit EmuBoard(fw_emu::EmuOptions options = {}) : options_(std::move(options)) {}
@@ -30,7 +46,9 @@ class EmuBoard : public VirtualBoard {
     if (!emu_->ok()) return *error = emu_->error(), false;
     emu_->PowerOn();
     host_ = std::make_unique<fw_emu::UsbHost>(emu_.get());
-    return Reenumerate(error);
+    const bool ok = Reenumerate(error);
+    target_cycle_ = emu_->cycles();  // the caller's time starts here
+    return ok;
   }
   bool Reenumerate(std::string* error) {
     const fw_emu::UsbHost::Enumeration e = host_->Enumerate(address_++);
@@ -48,8 +66,17 @@ class EmuBoard : public VirtualBoard {
     std::copy(bytes.begin(), bytes.end(), out);
     return bytes.size();
   }
+  // In slices of 100 us, each at the SYSCLK of its start (it changes at boot and after a reset).
   void Advance(int64_t us) override {
-    if (!emu_->RunUs(static_cast<uint64_t>(us))) Note(emu_->error());
+    for (int64_t done = 0; done < us;) {
+      const int64_t slice = std::min<int64_t>(us - done, 100);
+      target_cycle_ += static_cast<uint64_t>(slice) * (emu_->sysclk_hz() / 1'000'000u);
+      done += slice;
+      if (emu_->cycles() < target_cycle_ && !emu_->Run(target_cycle_ - emu_->cycles())) {
+        Note(emu_->error());
+        return;
+      }
+    }
   }
 
   fw_emu::F411Emu& emu() { return *emu_; }
@@ -69,6 +96,7 @@ class EmuBoard : public VirtualBoard {
   uint8_t address_ = 5;
   std::string error_;
   uint64_t last_out_cycle_ = 0;
+  uint64_t target_cycle_ = 0;
 };
 
 }  // namespace rotoscan::device::testing

@@ -62,21 +62,31 @@ void SimRigTruth::ReadLog() {
     const sim_edge_t& e = edges[seen_];
     const int64_t t = static_cast<int64_t>(e.time_us) + offset_;
     switch (e.pin) {
-      case SIM_PIN_LASER_LEFT: laser_[0].emplace_back(t, e.level != 0); break;
-      case SIM_PIN_LASER_RIGHT: laser_[1].emplace_back(t, e.level != 0); break;
-      case SIM_PIN_DIR: dir_ = e.level ? 1 : -1; break;
-      case SIM_PIN_STEP:
-        if (e.level) {
-          position_ += dir_;
-          step_times_.push_back(t);
-          step_positions_.push_back(position_);
-        }
-        break;
-      case SIM_PIN_TRIGGER:
-        if (e.level) triggers_.push_back(t);
-        break;
+      case SIM_PIN_LASER_LEFT: AddEdge(t, Pin::kLaserLeft, e.level != 0); break;
+      case SIM_PIN_LASER_RIGHT: AddEdge(t, Pin::kLaserRight, e.level != 0); break;
+      case SIM_PIN_DIR: AddEdge(t, Pin::kDir, e.level != 0); break;
+      case SIM_PIN_STEP: AddEdge(t, Pin::kStep, e.level != 0); break;
+      case SIM_PIN_TRIGGER: AddEdge(t, Pin::kTrigger, e.level != 0); break;
       default: break;
     }
+  }
+}
+
+void SimRigTruth::AddEdge(int64_t t, Pin pin, bool level) {
+  switch (pin) {
+    case Pin::kLaserLeft: laser_[0].emplace_back(t, level); break;
+    case Pin::kLaserRight: laser_[1].emplace_back(t, level); break;
+    case Pin::kDir: dir_ = level ? 1 : -1; break;
+    case Pin::kStep:
+      if (level) {
+        position_ += dir_;
+        step_times_.push_back(t);
+        step_positions_.push_back(position_);
+      }
+      break;
+    case Pin::kTrigger:
+      if (level) triggers_.push_back(t);
+      break;
   }
 }
 

@@ -2,7 +2,8 @@
 // laser levels, step pulses and trigger edges on the scan's host clock, device time t being host time
 // `host_offset_us + t`. The sim board uses it in virtual time; the hardware-in-the-loop tests use it for the
 // simulator behind a mocked USB bus, whose time runs in another thread: `locked` then runs each read of the
-// log with that thread held (null: read directly).
+// log with that thread held (null: read directly). Another pin log (the emulated board's, in the tests) can
+// feed the same timeline: a subclass overrides ReadLog() and hands each new edge to AddEdge().
 #pragma once
 
 #include <cstdint>
@@ -27,9 +28,15 @@ class SimRigTruth : public RigTruth {
   // Whether a laser was lit at `us` (0 left, 1 right).
   bool LaserAt(int laser, int64_t us);
 
+ protected:
+  enum class Pin { kLaserLeft, kLaserRight, kDir, kStep, kTrigger };
+  // One edge of the log at host time `host_us`, in time order.
+  void AddEdge(int64_t host_us, Pin pin, bool level);
+  // Takes the log's edges not taken yet (run through `locked` when given).
+  virtual void ReadLog();
+
  private:
   void Update();
-  void ReadLog();
   double Fraction(int i, int64_t from, int64_t to) const;
 
   int64_t offset_;

@@ -1,0 +1,57 @@
+// The shared parts of the capture hardware-in-the-loop scans (`capture::RunScan` through the `usb` board
+// backend against a board behind MockUsbBoard, with the virtual camera, hardware-triggered): the scene (a
+// sphere off the table's axis, so that a frame at the wrong angle leaves it), opening the `usb` board and
+// the `virtual` camera with a test's rig truth, the scan's options with a check of every frame against that
+// truth, and the check of the bundle and its processed cloud against the true sphere. Used by
+// capture_hil_emu_test (the flashed image on the emulated chip); written so that capture_hil_test (the
+// firmware core built for the host) can use it too.
+#pragma once
+
+#include <Eigen/Core>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "rotoscan/capture/factory.h"
+#include "rotoscan/capture/scan.h"
+#include "rotoscan/capture/virtual_rig.h"
+
+namespace rotoscan::capture::testing {
+
+// A 200-step motor at 16 microsteps, direct drive: 16 steps of the scan's 200-step program are 22.5°.
+constexpr int kHilStepsPerRev = 3200;
+constexpr double kHilSphereRadiusMm = 20.0;
+// Points from the true rig on the true sphere: what the virtual-time scans reach (0.05 mm), with room for
+// the frames of a real-time scan.
+constexpr double kHilRmsToleranceMm = 0.1;
+constexpr double kHilWorstToleranceMm = 1.0;
+
+// The sphere's centre in table coordinates (the scene puts it at (12, 0, 0) on a table 20 mm below).
+Eigen::Vector3d HilSphereCentre();
+// Writes the scene (a 256 x 192 camera, the sphere) to `path`.
+void WriteHilScene(const std::filesystem::path& path);
+
+struct HilRig {
+  std::unique_ptr<Board> board;
+  std::unique_ptr<Camera> camera;
+  OpenContext context;
+};
+// Opens the `usb` board (reconnect window `reconnect_ms`) and the `virtual` camera rendering `scene_path`
+// from `truth`. Failures are gtest failures; the rig then lacks what did not open.
+HilRig OpenHilRig(const std::filesystem::path& scene_path, RigTruth* truth, int reconnect_ms = 1000);
+
+// Options of a hardware-triggered scan of `steps` steps; every frame is checked against `truth`: exposed
+// inside one laser state, the laser the frame says, the table standing at the frame's angle over the whole
+// exposure.
+// `*checked` counts the frames checked; `then` (may be null) runs after each check (a test's fault
+// injection).
+ScanOptions HilScanOptions(int steps, const std::filesystem::path& scene_path, RigTruth* truth, int* checked,
+                           std::function<void(const CapturedFrame&)> then, const std::string& created_by);
+
+// The bundle holds every (step, laser) once and its processed cloud lies on the true sphere (prints RMS and
+// worst distance). gtest failures otherwise.
+void CheckHilBundleAndCloud(const std::filesystem::path& bundle_dir, const std::filesystem::path& scene_path,
+                            int steps);
+
+}  // namespace rotoscan::capture::testing
