@@ -3,13 +3,18 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <string>
+#include <thread>
 #include <utility>
 
 #include "rotoscan/bundle/bundle.h"
+#include "rotoscan/capture/clock.h"
+#include "rotoscan/device/client.h"
 #include "rotoscan/pipeline/process.h"
 #include "rotoscan/sim/scene.h"
 
@@ -101,6 +106,29 @@ void CheckHilBundleAndCloud(const fs::path& bundle_dir, const fs::path& scene_pa
               worst);
   EXPECT_LT(rms, kHilRmsToleranceMm);
   EXPECT_LT(worst, kHilWorstToleranceMm);
+}
+
+void ExpectReconnectWindowError(const Status& status, int reconnect_ms) {
+  ASSERT_FALSE(status.ok());
+  std::printf("the scan stopped: %s\n", status.ToString().c_str());
+  EXPECT_EQ(status.code(), StatusCode::kDeviceError) << status.ToString();
+  EXPECT_NE(status.message().find(std::to_string(reconnect_ms) + " ms"), std::string::npos)
+      << status.ToString();
+}
+
+void ExpectLaserSafetyAfterUnplug(RigTruth& truth, int64_t unplugged_at) {
+  const int64_t timeout_us = device::MotionConfig{}.laser_timeout_ms * 1000LL;
+  while (MonotonicNowUs() < unplugged_at + timeout_us + 300'000) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  const int64_t now = MonotonicNowUs();
+  double left = 1.0, right = 1.0;
+  truth.LaserFractions(now - 1000, now, &left, &right);
+  EXPECT_EQ(left, 0.0) << "left laser still on";
+  EXPECT_EQ(right, 0.0) << "right laser still on";
+  const auto switches = truth.LaserSwitches(unplugged_at, now);
+  ASSERT_FALSE(switches.empty());
+  EXPECT_LE(switches.back(), unplugged_at + timeout_us + 200'000) << "lasers went off late";
 }
 
 }  // namespace rotoscan::capture::testing

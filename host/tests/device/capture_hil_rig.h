@@ -54,4 +54,12 @@ ScanOptions HilScanOptions(int steps, const std::filesystem::path& scene_path, R
 void CheckHilBundleAndCloud(const std::filesystem::path& bundle_dir, const std::filesystem::path& scene_path,
                             int steps);
 
+// A scan stopped by an unplug longer than the reconnect window: a device error that names the window.
+void ExpectReconnectWindowError(const Status& status, int reconnect_ms);
+
+// The board's laser safety after an unplug at host time `unplugged_at`: waits in real time until its laser
+// timeout (MotionConfig's default, which the `usb` backend sets) and 300 ms more have passed, then checks
+// on `truth` that both lasers are off and that they went off no later than 200 ms after the timeout.
+void ExpectLaserSafetyAfterUnplug(RigTruth& truth, int64_t unplugged_at);
+
 }  // namespace rotoscan::capture::testing

@@ -19,20 +19,28 @@
 #include "elf_image.h"
 #include "emu_image.h"
 #include "f411_emu.h"
+#include "hil_common.h"
 #include "rotoscan/device/transport.h"
 #include "usb_host.h"
 
 namespace rotoscan::device::testing {
 
-// The image's pins (firmware/port/stm32f411/board.h).
-struct EmuPin {
-  uint8_t port;
-  uint8_t pin;
-  bool Is(const fw_emu::PinEdge& e) const { return e.port == port && e.pin == pin; }
-};
-constexpr EmuPin kEmuStepPin{fw_emu::kPortB, 4}, kEmuDirPin{fw_emu::kPortB, 5},
-    kEmuLaserLeftPin{fw_emu::kPortB, 13}, kEmuLaserRightPin{fw_emu::kPortB, 14},
-    kEmuTriggerPin{fw_emu::kPortA, 15};
+// The image's pins (firmware/port/stm32f411/board.h): STEP PB4, DIR PB5, LASER_L PB13, LASER_R PB14, TRIGGER
+// PA15.
+inline RigPin EmuRigPin(const fw_emu::PinEdge& e) {
+  if (e.port == fw_emu::kPortB && e.pin == 4) return RigPin::kStep;
+  if (e.port == fw_emu::kPortB && e.pin == 5) return RigPin::kDir;
+  if (e.port == fw_emu::kPortB && e.pin == 13) return RigPin::kLaserLeft;
+  if (e.port == fw_emu::kPortB && e.pin == 14) return RigPin::kLaserRight;
+  if (e.port == fw_emu::kPortA && e.pin == 15) return RigPin::kTrigger;
+  return RigPin::kOther;
+}
+
+// Skips the test when there is no image to run (in a test body or SetUp()).
+#define ROTOSCAN_SKIP_WITHOUT_FW_IMAGE()                                     \
+  if (!::rotoscan::fw_emu::ImageExists(::rotoscan::fw_emu::ImagePath()))     \
+  GTEST_SKIP() << "no firmware image at " << ::rotoscan::fw_emu::ImagePath() \
+               << " (the cross build, firmware.cross_build, needs arm-none-eabi-gcc)"
 
 class EmuBoard : public VirtualBoard {
  public:
@@ -98,5 +106,14 @@ class EmuBoard : public VirtualBoard {
   uint64_t last_out_cycle_ = 0;
   uint64_t target_cycle_ = 0;
 };
+
+// The image's pin log decoded (hil_common.h), edge times in device microseconds: the TIM2 count less the
+// count at fw_init (core/timebase.c g_tb.boot_counter, the first word of the image's g_tb).
+inline PinLogDecoder DecodeEmuLog(fw_emu::F411Emu& emu) {
+  const uint32_t boot_counter = emu.Peek(emu.image().Symbol("g_tb"));
+  PinLogDecoder log;
+  for (const fw_emu::PinEdge& e : emu.edges()) log.Add(e.tim2 - boot_counter, EmuRigPin(e), e.level);
+  return log;
+}
 
 }  // namespace rotoscan::device::testing

@@ -68,11 +68,14 @@ class EmuRigTruth : public capture::internal::SimRigTruth {
       const fw_emu::PinEdge& e = edges[seen_];
       if (e.cycle < zero_cycle_) continue;  // before the mock's clock: enumeration, no scan yet
       const int64_t t = HostUs(e.cycle);
-      if (kEmuLaserLeftPin.Is(e)) AddEdge(t, Pin::kLaserLeft, e.level);
-      if (kEmuLaserRightPin.Is(e)) AddEdge(t, Pin::kLaserRight, e.level);
-      if (kEmuDirPin.Is(e)) AddEdge(t, Pin::kDir, e.level);
-      if (kEmuStepPin.Is(e)) AddEdge(t, Pin::kStep, e.level);
-      if (kEmuTriggerPin.Is(e)) AddEdge(t, Pin::kTrigger, e.level);
+      switch (EmuRigPin(e)) {
+        case RigPin::kLaserLeft: AddEdge(t, Pin::kLaserLeft, e.level); break;
+        case RigPin::kLaserRight: AddEdge(t, Pin::kLaserRight, e.level); break;
+        case RigPin::kDir: AddEdge(t, Pin::kDir, e.level); break;
+        case RigPin::kStep: AddEdge(t, Pin::kStep, e.level); break;
+        case RigPin::kTrigger: AddEdge(t, Pin::kTrigger, e.level); break;
+        case RigPin::kOther: break;
+      }
     }
   }
 

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "emu_board.h"
+#include "hil_common.h"
 #include "rotoscan/device/client.h"
 #include "rotoscan_protocol.h"
 
@@ -28,29 +29,16 @@ namespace {
 using testing::EmuBoard;
 
 constexpr uint32_t kSteps = 200;
-constexpr int32_t kStepsPerMove = 16;
+constexpr int32_t kStepsPerMove = testing::kHilStepsPerMove;
 constexpr uint32_t kBudgetCycles = 480;  // DESIGN.md: 5 us at 96 MHz
 constexpr uint32_t kTim2Exception = 16 + fw_emu::kTim2Irq, kTim3Exception = 16 + fw_emu::kTim3Irq,
                    kOtgException = 16 + fw_emu::kOtgFsIrq;
 
 ScanProgram Program() {
-  ScanProgram p;
-  p.step_count = kSteps;
-  p.steps_per_move = kStepsPerMove;
-  p.settle_us = 500;
-  p.laser_lead_us = 200;
-  p.shots = {{kLaserLeft, 1000}, {kLaserRight, 1000}, {0, 1000}, {0, 4000}};
-  return p;
+  return testing::HilProgram(kSteps);
 }
-
 MotionConfig Config() {
-  MotionConfig c;
-  c.start_rate_hz = 1000;
-  c.max_rate_hz = 20000;
-  c.accel_hz_per_s = 2'000'000;
-  c.trigger_pulse_us = 50;
-  c.laser_timeout_ms = 1000;
-  return c;
+  return testing::HilConfig(/*laser_timeout_ms=*/1000);
 }
 
 uint64_t cycles_so_far(const fw_emu::F411Emu& emu, uint64_t since) {
@@ -68,10 +56,7 @@ fw_emu::EmuOptions WithCamera() {
 class EmuScan : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!fw_emu::ImageExists(fw_emu::ImagePath())) {
-      GTEST_SKIP() << "no firmware image at " << fw_emu::ImagePath()
-                   << " (the cross build, firmware.cross_build, needs arm-none-eabi-gcc)";
-    }
+    ROTOSCAN_SKIP_WITHOUT_FW_IMAGE();
     std::string error;
     ASSERT_TRUE(board_.Boot(&error)) << error;
     InProcessTransportOptions t;
@@ -151,32 +136,23 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
   ASSERT_EQ(triggers.size(), kSteps * program.shots.size());
   EXPECT_EQ(client_->stats().lost_events, 0);
 
-  // The truth: the emulator's pin edges and captures.
-  struct Truth {
-    uint32_t tim2;
-    uint8_t lasers;
-    int32_t position;
-  };
-  std::vector<Truth> edges;
-  uint8_t lasers = 0;
-  int32_t position = 0, dir = 1;
-  int step_pulses = 0;
+  // The truth: the emulator's pin edges (device time: TIM2 counts less the count at fw_init) and captures.
+  ASSERT_NE(emu.image().Symbol("g_tb"), 0u) << "no g_tb in the image's symbols";
+  const testing::PinLogDecoder log = testing::DecodeEmuLog(emu);
+  const std::vector<testing::EdgeTruth>& edges = log.triggers();
   // Pulse widths: STEP high (the driver's minimum: DRV8825 1.9 us, A4988 1 us) and the trigger pulse
   // (SET_CONFIG trigger_pulse_us, made by TIM2's compares: exact in ticks).
   uint64_t step_rose = 0, step_min = ~0ull, step_max = 0;
   uint32_t trigger_rose = 0;
   int trigger_pulses_right = 0;
   for (const fw_emu::PinEdge& e : emu.edges()) {
-    if (e.port == fw_emu::kPortB && e.pin == 13) lasers = uint8_t((lasers & ~1u) | (e.level ? 1u : 0u));
-    if (e.port == fw_emu::kPortB && e.pin == 14) lasers = uint8_t((lasers & ~2u) | (e.level ? 2u : 0u));
-    if (e.port == fw_emu::kPortB && e.pin == 5) dir = e.level ? 1 : -1;
-    if (e.port == fw_emu::kPortB && e.pin == 4 && e.level) position += dir, ++step_pulses, step_rose = e.cycle;
-    if (e.port == fw_emu::kPortB && e.pin == 4 && !e.level && step_rose != 0) {
+    const testing::RigPin pin = testing::EmuRigPin(e);
+    if (pin == testing::RigPin::kStep && e.level) step_rose = e.cycle;
+    if (pin == testing::RigPin::kStep && !e.level && step_rose != 0) {
       step_min = std::min(step_min, e.cycle - step_rose);
       step_max = std::max(step_max, e.cycle - step_rose);
     }
-    if (e.port == fw_emu::kPortA && e.pin == 15 && e.level) edges.push_back({e.tim2, lasers, position});
-    if (e.port == fw_emu::kPortA && e.pin == 15) {
+    if (pin == testing::RigPin::kTrigger) {
       if (e.level) trigger_rose = e.tim2;
       if (!e.level && e.tim2 - trigger_rose == Config().trigger_pulse_us) ++trigger_pulses_right;
     }
@@ -185,25 +161,21 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
   EXPECT_EQ(trigger_pulses_right, int(triggers.size())) << "trigger pulses not exactly 50 us";
   std::printf("STEP pulse high %.2f-%.2f us; %d trigger pulses of exactly %u us\n", step_min / 96.0,
               step_max / 96.0, trigger_pulses_right, Config().trigger_pulse_us);
-  // Device time is TIM2's count less the count at fw_init (core/timebase.c g_tb.boot_counter, the first
-  // word of the image's g_tb).
-  const uint32_t g_tb = emu.image().Symbol("g_tb");
-  ASSERT_NE(g_tb, 0u) << "no g_tb in the image's symbols";
-  const uint32_t boot_counter = emu.Peek(g_tb);
-  for (Truth& e : edges) e.tim2 -= boot_counter;
+  const uint32_t boot_counter = emu.Peek(emu.image().Symbol("g_tb"));
   std::vector<uint32_t> exposure_rises;
   for (const fw_emu::PinEdge& c : emu.captures()) {
     if (c.level) exposure_rises.push_back(c.tim2 - boot_counter);
   }
+  const int step_pulses = log.step_pulses();
   EXPECT_EQ(step_pulses, int((kSteps - 1) * kStepsPerMove));
   ASSERT_EQ(edges.size(), triggers.size());
   ASSERT_EQ(exposure_rises.size(), triggers.size());
   for (size_t i = 0; i < triggers.size(); ++i) {
     const TriggerEvent& t = triggers[i];
     ASSERT_LT(t.trigger_seq, edges.size());
-    const Truth& truth = edges[t.trigger_seq];
+    const testing::EdgeTruth& truth = edges[t.trigger_seq];
     const uint32_t step = t.step_index.value_or(~0u);
-    EXPECT_EQ(t.time_us, truth.tim2) << "step " << step << " shot " << int(t.shot) << ": not the TIM2 count";
+    EXPECT_EQ(t.time_us, truth.time) << "step " << step << " shot " << int(t.shot) << ": not the TIM2 count";
     ASSERT_TRUE(t.exposure_seen_us.has_value()) << "step " << step << " shot " << int(t.shot);
     EXPECT_EQ(*t.exposure_seen_us, exposure_rises[t.trigger_seq])
         << "step " << step << " shot " << int(t.shot);
@@ -259,8 +231,7 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
 // would) ends in the image's fault handler, which switches the lasers off, records the fault
 // in RAM that survives the reset, and resets the chip. After the reset the record comes back over GET_DIAG.
 TEST(EmuFault, UnhandledInterruptIsRecordedAcrossTheResetAndReportedByGetDiag) {
-  if (!fw_emu::ImageExists(fw_emu::ImagePath()))
-    GTEST_SKIP() << "no firmware image at " << fw_emu::ImagePath();
+  ROTOSCAN_SKIP_WITHOUT_FW_IMAGE();
   fw_emu::EmuOptions options;
   options.stop_on_unhandled_interrupt = false;
   EmuBoard board(options);
