@@ -34,6 +34,9 @@ constexpr uint32_t kNoException = 0;
 
 // Cycle model (f411_emu.h).
 constexpr uint32_t kBranchPenalty = 3;
+// FLASH_ACR (RM0383 3.8.1): LATENCY[3:0], PRFTEN 8, ICEN 9, DCEN 10, ICRST 11, DCRST 12.
+constexpr uint32_t kFlashAcrPrften = 1u << 8, kFlashAcrIcen = 1u << 9, kFlashAcrDcen = 1u << 10,
+                   kFlashAcrIcrst = 1u << 11, kFlashAcrDcrst = 1u << 12;
 constexpr uint32_t kExceptionEntry = 12, kExceptionReturn = 10;
 constexpr uint32_t kApb1Access = 4, kAhbAccess = 1;
 
@@ -181,6 +184,69 @@ struct SysTick {
 
 }  // namespace
 
+// The flash read path with the ART accelerator (RM0383 3.4.2, FLASH_ACR bits of 3.8.1): the flash is read in
+// lines of 128 bits, each read taking LATENCY wait states more than a zero-wait-state access. The model:
+//   - instruction side: the CPU executes from one line at a time (the fetch buffer). Moving to another line
+//     costs LATENCY cycles unless that line is the next one in sequence and prefetch is on (PRFTEN: read
+//     while the current line executes; a line holds 4 to 8 instructions, at least 4 cycles, so with 3 wait
+//     states a sequential read is always complete), or it is in the instruction cache (ICEN: 64 lines of
+//     128 bits). A line read on a miss is copied into the cache, the least recently used line replaced
+//     once the cache is full (the manual's words: "each time a miss occurs ... the line read is copied into
+//     the instruction cache memory", then "the LRU policy");
+//   - data side: a read of flash data (literal pools, constant tables, the vector on exception entry) costs
+//     LATENCY cycles unless its line is in the data cache (DCEN: "like the instruction cache memory, but ...
+//     limited to 8 rows of 128 bits");
+//   - ICRST / DCRST empty the caches.
+// A miss costs exactly LATENCY (the manual: "at least equal to the number of wait states"); a data read
+// that stalls an instruction read (D-Code has priority over I-Code) is not modelled beyond that.
+struct Art {
+  static constexpr uint32_t kNone = ~0u;
+  uint32_t current = kNone;              // the line the CPU executes from
+  std::vector<uint32_t> icache, dcache;  // lines, most recently used first
+  uint64_t i_misses = 0, d_misses = 0, stall_cycles = 0;
+
+  static bool Touch(std::vector<uint32_t>* cache, uint32_t line) {
+    for (size_t i = 0; i < cache->size(); ++i) {
+      if ((*cache)[i] == line) {
+        std::rotate(cache->begin(), cache->begin() + static_cast<std::ptrdiff_t>(i),
+                    cache->begin() + static_cast<std::ptrdiff_t>(i) + 1);
+        return true;
+      }
+    }
+    return false;
+  }
+  static void Insert(std::vector<uint32_t>* cache, uint32_t line, size_t lines) {
+    cache->insert(cache->begin(), line);
+    if (cache->size() > lines) cache->pop_back();
+  }
+  // Cycles the fetch of an instruction at `address` waits for the flash.
+  uint32_t Fetch(uint32_t address, uint32_t acr) {
+    const uint32_t line = address >> 4;
+    if (line == current) return 0;
+    const bool sequential = current != kNone && line == current + 1;
+    current = line;
+    if (sequential && (acr & kFlashAcrPrften)) return 0;
+    if ((acr & kFlashAcrIcen) && Touch(&icache, line)) return 0;
+    if (acr & kFlashAcrIcen) Insert(&icache, line, 64);
+    ++i_misses;
+    stall_cycles += acr & 0xFu;
+    return acr & 0xFu;
+  }
+  // Cycles a data read of flash at `address` waits.
+  uint32_t Read(uint32_t address, uint32_t acr) {
+    const uint32_t line = address >> 4;
+    if ((acr & kFlashAcrDcen) && Touch(&dcache, line)) return 0;
+    if (acr & kFlashAcrDcen) Insert(&dcache, line, 8);
+    ++d_misses;
+    stall_cycles += acr & 0xFu;
+    return acr & 0xFu;
+  }
+  void Write(uint32_t acr) {
+    if (acr & kFlashAcrIcrst) icache.clear();
+    if (acr & kFlashAcrDcrst) dcache.clear();
+  }
+};
+
 struct F411Emu::Impl {
   F411Emu* self = nullptr;
   EmuOptions options;
@@ -205,6 +271,7 @@ struct F411Emu::Impl {
            rcc_apb2enr = 0, rcc_csr = 0;
   uint32_t flash_acr = 0, pwr_cr = 0;
   uint32_t sysclk = 16000000, usb_clk = 0;
+  Art art;
   std::array<Gpio, 3> gpio;
   Timer tim2, tim3;
   SysTick systick;
@@ -618,6 +685,7 @@ struct F411Emu::Impl {
       nvic_ispr[(exception - 16) / 32] &= ~(1u << ((exception - 16) % 32));
     }
     cycles += kExceptionEntry;
+    if (options.flash_wait_states) cycles += art.Read(vtor + 4 * exception, flash_acr);
     active.push_back(Active{exception, Priority(exception), cycles - kExceptionEntry, 0, sp, fp});
     expect_pc = 0;
   }
@@ -677,6 +745,7 @@ struct F411Emu::Impl {
     rcc_pllcfgr = 0x24003010;
     rcc_cfgr = rcc_ahb1enr = rcc_ahb2enr = rcc_apb1enr = rcc_apb2enr = 0;
     flash_acr = 0;
+    art = Art{};
     pwr_cr = 0x00008000;
     sysclk = 16000000;
     usb_clk = 0;
@@ -1093,6 +1162,7 @@ struct F411Emu::Impl {
           Fail("flash wait states lowered while SYSCLK is fast");
           return;
         }
+        if (options.flash_wait_states) art.Write(v);
         flash_acr = v & 0x70Fu;  // ICRST / DCRST self-clear
         return;
       }
@@ -1212,12 +1282,19 @@ struct F411Emu::Impl {
         return;
       }
       e->cycles += i.cycles;
+      if (e->options.flash_wait_states) e->cycles += e->art.Fetch(a, e->flash_acr);
       if (i.flags & kInsnCpsie) e->stop_at = 0;  // stop before the next instruction: Step takes it
     } else {
       e->cycles += 1;  // code outside flash (none in the image): one cycle
     }
     ++e->instructions;
     e->expect_pc = a + size;
+  }
+
+  // A data read of flash by the image (literal pools, constants): the ART's data side.
+  static void OnFlashRead(uc_engine*, uc_mem_type, uint64_t address, int, int64_t, void* user) {
+    Impl* e = static_cast<Impl*>(user);
+    e->cycles += e->art.Read(uint32_t(address), e->flash_acr);
   }
 
   static bool OnUnmapped(uc_engine*, uc_mem_type type, uint64_t address, int size, int64_t, void* user) {
@@ -1377,6 +1454,10 @@ F411Emu::F411Emu(const ElfImage& image, const EmuOptions& options) : impl_(new I
   uc_hook h;
   if (err == UC_ERR_OK)
     err = uc_hook_add(e.uc, &h, UC_HOOK_CODE, reinterpret_cast<void*>(&Impl::OnCode), impl_.get(), 1, 0);
+  if (err == UC_ERR_OK && options.flash_wait_states) {
+    err = uc_hook_add(e.uc, &h, UC_HOOK_MEM_READ, reinterpret_cast<void*>(&Impl::OnFlashRead), impl_.get(),
+                      kFlashBase, kFlashBase + kFlashSize - 1);
+  }
   if (err == UC_ERR_OK) {
     err = uc_hook_add(e.uc, &h, UC_HOOK_MEM_UNMAPPED, reinterpret_cast<void*>(&Impl::OnUnmapped), impl_.get(),
                       1, 0);
@@ -1438,6 +1519,12 @@ const std::string& F411Emu::error() const {
 }
 uint64_t F411Emu::cycles() const {
   return impl_->cycles;
+}
+uint64_t F411Emu::flash_stall_cycles() const {
+  return impl_->art.stall_cycles;
+}
+uint64_t F411Emu::flash_misses() const {
+  return impl_->art.i_misses + impl_->art.d_misses;
 }
 uint64_t F411Emu::instructions() const {
   return impl_->instructions;

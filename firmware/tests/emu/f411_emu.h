@@ -24,9 +24,12 @@
 //   VPOP 1 + one per register (+1 for a load of a single register); LDRD/STRD 3; UDIV/SDIV 12 (the worst
 //   case of 2-12); a taken branch, or any write to PC, +3 (the worst-case pipeline refill of the TRM's 1-3);
 //   an access to a peripheral on APB1 (TIM2, TIM3, PWR) +4 (two APB1 clocks at 48 MHz), on AHB1/AHB2 (GPIO,
-//   RCC, flash interface, OTG_FS) +1; exception entry 12 cycles, exception return 10. Flash wait states are
-//   hidden by the ART accelerator's instruction cache and prefetch in this model (its cache of 64 lines of
-//   128 bits holds the whole main loop and interrupt handlers); they are not added.
+//   RCC, flash interface, OTG_FS) +1; exception entry 12 cycles, exception return 10; and the flash's wait
+//   states (FLASH_ACR LATENCY, 3 at 96 MHz) where the ART accelerator does not hide them (RM0383 3.4.2): an
+//   instruction fetch from a flash line that is neither the current one, the prefetched next one (PRFTEN)
+//   nor in the instruction cache (ICEN, 64 lines of 128 bits, LRU), and a data read of flash
+//   (literals, the vector on exception entry) that misses the data cache (DCEN, 8 lines), each + LATENCY
+//   (EmuOptions::flash_wait_states; the model is described at Art in f411_emu.cc).
 // Instructions are counted too. While the CPU sleeps (WFI) time runs to the next event without instructions.
 //
 // Anything the model does not know stops the run with an error that names the address and the faulting
@@ -92,6 +95,9 @@ struct EmuOptions {
   // An interrupt whose vector is the image's default handler stops the run; false lets the image take it
   // (its fault handler then records the fault and resets the chip: the fault path under test).
   bool stop_on_unhandled_interrupt = true;
+  // Flash wait states and the ART accelerator in the cycle model (false: flash as fast as RAM, the model
+  // before they were added).
+  bool flash_wait_states = true;
 };
 
 class F411Emu {
@@ -113,6 +119,9 @@ class F411Emu {
 
   uint64_t cycles() const;
   uint64_t instructions() const;
+  // Cycles spent waiting for flash (ART misses) and how many misses, instruction and data side.
+  uint64_t flash_stall_cycles() const;
+  uint64_t flash_misses() const;
   uint64_t sleep_cycles() const;  // cycles spent in WFI
   uint64_t wfi_count() const;
   uint64_t resets() const;  // system resets requested by the image (AIRCR.SYSRESETREQ)

@@ -14,7 +14,9 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <map>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -45,12 +47,39 @@ uint64_t cycles_so_far(const fw_emu::F411Emu& emu, uint64_t since) {
   return emu.cycles() - since;
 }
 
+// ROTOSCAN_EMU_FLASH_WAIT=0 runs the image with flash as fast as RAM (no wait states, no ART model), for
+// comparing the interrupt figures with the flash model.
 fw_emu::EmuOptions WithCamera() {
   fw_emu::EmuOptions o;
+  const char* flash = std::getenv("ROTOSCAN_EMU_FLASH_WAIT");
+  o.flash_wait_states = flash == nullptr || std::string(flash) != "0";
   o.camera.enabled = true;
   o.camera.latency_us = 12;
   o.camera.exposure_us = 400;
   return o;
+}
+
+// Starts the loaded program and collects its TRIGGER_EVENTs until PROGRAM_DONE, pinging as the laser-safety
+// keep-alive (1 s timeout).
+void RunToTheEnd(Client& client, EmuBoard& board, std::vector<TriggerEvent>* triggers) {
+  ASSERT_TRUE(client.Start(0).ok()) << board.error();
+  bool done = false;
+  int64_t last_ping = client.transport().NowUs();
+  for (int i = 0; i < 100000 && !done; ++i) {
+    if (client.transport().NowUs() - last_ping > 100'000) {
+      ASSERT_TRUE(client.Ping().ok()) << board.error();
+      last_ping = client.transport().NowUs();
+    }
+    auto event = client.NextEvent(20'000);
+    ASSERT_TRUE(event.ok()) << event.status().ToString() << " / " << board.error();
+    if (!event->has_value()) continue;
+    if (const auto* t = std::get_if<TriggerEvent>(&**event)) triggers->push_back(*t);
+    if (const auto* s = std::get_if<BoardStatus>(&**event)) {
+      ASSERT_NE(s->cause, StatusCause::kSafety);
+      done = s->cause == StatusCause::kProgramDone;
+    }
+  }
+  ASSERT_TRUE(done) << board.error();
 }
 
 class EmuScan : public ::testing::Test {
@@ -113,25 +142,9 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
   ASSERT_TRUE(client_->EnableMotor(true).ok());
   ASSERT_TRUE(client_->LoadProgram(Program()).ok());
   const uint64_t start_cycles = emu.cycles(), start_instructions = emu.instructions();
-  ASSERT_TRUE(client_->Start(0).ok());
+  const uint64_t start_stall = emu.flash_stall_cycles(), start_misses = emu.flash_misses();
   std::vector<TriggerEvent> triggers;
-  bool done = false;
-  int64_t last_ping = client_->transport().NowUs();
-  for (int i = 0; i < 100000 && !done; ++i) {
-    if (client_->transport().NowUs() - last_ping > 100'000) {  // the laser-safety keep-alive (1 s timeout)
-      ASSERT_TRUE(client_->Ping().ok()) << board_.error();
-      last_ping = client_->transport().NowUs();
-    }
-    auto event = client_->NextEvent(20'000);
-    ASSERT_TRUE(event.ok()) << event.status().ToString() << " / " << board_.error();
-    if (!event->has_value()) continue;
-    if (const auto* t = std::get_if<TriggerEvent>(&**event)) triggers.push_back(*t);
-    if (const auto* s = std::get_if<BoardStatus>(&**event)) {
-      ASSERT_NE(s->cause, StatusCause::kSafety);
-      done = s->cause == StatusCause::kProgramDone;
-    }
-  }
-  ASSERT_TRUE(done) << board_.error();
+  ASSERT_NO_FATAL_FAILURE(RunToTheEnd(*client_, board_, &triggers));
   const ScanProgram program = Program();
   ASSERT_EQ(triggers.size(), kSteps * program.shots.size());
   EXPECT_EQ(client_->stats().lost_events, 0);
@@ -215,7 +228,8 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
       "%llu\n"
       "  trigger/laser/exposure interrupt (TIM2): %llu runs, worst %llu cycles (%.2f us)\n"
       "  USB interrupt (OTG_FS): %llu runs, worst %llu cycles\n"
-      "  stack high-water mark: %u bytes of 4096; asleep (WFI) %.1f %% of the time since power-on\n",
+      "  stack high-water mark: %u bytes of 4096; asleep (WFI) %.1f %% of the time since power-on\n"
+      "  flash wait states (%s): %llu ART misses, %llu cycles waiting for flash\n",
       kSteps, program.shots.size(), cycles / 96000.0,
       static_cast<unsigned long long>(emu.instructions() - start_instructions),
       static_cast<unsigned long long>(step.runs), static_cast<unsigned long long>(step.max_cycles),
@@ -223,7 +237,48 @@ TEST_F(EmuScan, ScanOf200StepsTimestampsExactToTheTick) {
       static_cast<unsigned long long>(step.max_dwt_window), static_cast<unsigned long long>(timebase.runs),
       static_cast<unsigned long long>(timebase.max_cycles), timebase.max_cycles / 96.0,
       static_cast<unsigned long long>(usb.runs), static_cast<unsigned long long>(usb.max_cycles), stack,
-      100.0 * double(emu.sleep_cycles()) / double(emu.cycles()));
+      100.0 * double(emu.sleep_cycles()) / double(emu.cycles()),
+      WithCamera().flash_wait_states ? "modelled, ART on" : "not modelled",
+      static_cast<unsigned long long>(emu.flash_misses() - start_misses),
+      static_cast<unsigned long long>(emu.flash_stall_cycles() - start_stall));
+}
+
+// The flash model (EmuOptions::flash_wait_states, f411_emu.h): the same 20-step program on the image with the
+// flash's 3 wait states behind the ART accelerator and with flash as fast as RAM. The interrupts take longer
+// with the wait states (the ART misses: the image's code and literals do not all stay in its caches) and
+// stay within the budget.
+TEST(EmuFlash, WaitStatesSlowTheInterruptsWithinTheBudget) {
+  ROTOSCAN_SKIP_WITHOUT_FW_IMAGE();
+  uint64_t step_max[2] = {0, 0}, trigger_max[2] = {0, 0}, misses[2] = {0, 0};
+  for (int flash = 0; flash < 2; ++flash) {
+    fw_emu::EmuOptions options;
+    options.flash_wait_states = flash == 1;
+    EmuBoard board(options);
+    std::string error;
+    ASSERT_TRUE(board.Boot(&error)) << error;
+    auto client = Client::Connect(MakeInProcessTransport(&board));
+    ASSERT_TRUE(client.ok()) << client.status().ToString();
+    ASSERT_TRUE((*client)->SetConfig(Config()).ok());
+    ASSERT_TRUE((*client)->EnableMotor(true).ok());
+    ASSERT_TRUE((*client)->LoadProgram(testing::HilProgram(20)).ok());
+    std::vector<TriggerEvent> triggers;
+    ASSERT_NO_FATAL_FAILURE(RunToTheEnd(**client, board, &triggers));
+    EXPECT_EQ(triggers.size(), 80u);
+    step_max[flash] = board.emu().exception_stats(kTim3Exception).max_cycles;
+    trigger_max[flash] = board.emu().exception_stats(kTim2Exception).max_cycles;
+    misses[flash] = board.emu().flash_misses();
+    EXPECT_EQ(board.error(), "");
+  }
+  std::printf(
+      "20 steps: step interrupt worst %llu cycles with flash wait states, %llu without; trigger %llu, %llu\n",
+      static_cast<unsigned long long>(step_max[1]), static_cast<unsigned long long>(step_max[0]),
+      static_cast<unsigned long long>(trigger_max[1]), static_cast<unsigned long long>(trigger_max[0]));
+  EXPECT_EQ(misses[0], 0u);
+  EXPECT_GT(misses[1], 0u);
+  EXPECT_GT(step_max[1], step_max[0]);
+  EXPECT_GT(trigger_max[1], trigger_max[0]);
+  EXPECT_LE(step_max[1], kBudgetCycles);
+  EXPECT_LE(trigger_max[1], kBudgetCycles);
 }
 
 // The fault path on the image: an interrupt without a handler of its own (USART1, IRQ 37: the USB image has
