@@ -44,10 +44,7 @@ constexpr int kSteps = 16;
 class CaptureHilEmuTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!fw_emu::ImageExists(fw_emu::ImagePath())) {
-      GTEST_SKIP() << "no firmware image at " << fw_emu::ImagePath()
-                   << " (the cross build, firmware.cross_build, needs arm-none-eabi-gcc)";
-    }
+    ROTOSCAN_SKIP_WITHOUT_FW_IMAGE();
     ASSERT_TRUE(MockUsbBoard::InMockEnvironment()) << "run this test under umockdev-wrapper (ctest does)";
     dir_ = fs::temp_directory_path() /
            ("rotoscan_capture_hil_emu_" +
@@ -99,9 +96,10 @@ class CaptureHilEmuTest : public ::testing::Test {
       usb_->Replug();
     });
   }
-  // Prints how the host's clock fit compares with the emulated board's true clock: device time d (TIM2 less
-  // its count at the image's fw_init, core/timebase.c g_tb) is host time zero + d - (TIM2 at zero - boot).
-  void PrintClockFit(const HilRig& rig, int64_t tolerance_us) {
+  // The host's clock fit against the emulated board's true clock (printed), within `tolerance_us` at 1 s:
+  // device time d (TIM2 less its count at the image's fw_init, core/timebase.c g_tb) is host time
+  // zero + d - (TIM2 at zero - boot).
+  void CheckClockFit(const HilRig& rig, int64_t tolerance_us) {
     const auto* client_board = dynamic_cast<const internal::ClientBoard*>(rig.board.get());
     ASSERT_NE(client_board, nullptr);
     const double fit_error_us =
@@ -144,7 +142,7 @@ TEST_F(CaptureHilEmuTest, TriggeredScanOnTheImageEndsInACloudOnTheSurface) {
   EXPECT_EQ(s.timing, Timing::kTriggered);
   EXPECT_EQ(s.frames_used, kSteps * 4);
   EXPECT_EQ(frames_checked_, kSteps * 4);
-  PrintClockFit(rig, Options().match_tolerance_us);
+  CheckClockFit(rig, Options().match_tolerance_us);
   rig.board.reset();
   // Lasers off at the end (the image's pins, not the host's belief).
   EXPECT_FALSE(truth_->LaserAt(0, MonotonicNowUs()));
