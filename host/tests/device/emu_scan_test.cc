@@ -82,6 +82,15 @@ void RunToTheEnd(Client& client, EmuBoard& board, std::vector<TriggerEvent>* tri
   ASSERT_TRUE(done) << board.error();
 }
 
+// Boots `board` and connects the host's client to it over the in-process transport.
+void BootAndConnect(EmuBoard& board, std::unique_ptr<Client>* client) {
+  std::string error;
+  ASSERT_TRUE(board.Boot(&error)) << error;
+  auto connected = Client::Connect(MakeInProcessTransport(&board));
+  ASSERT_TRUE(connected.ok()) << connected.status().ToString() << " / " << board.error();
+  *client = std::move(connected).value();
+}
+
 class EmuScan : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -256,15 +265,13 @@ TEST(EmuFlash, WaitStatesSlowTheInterruptsWithinTheBudget) {
     fw_emu::EmuOptions options;
     options.flash_wait_states = flash == 1;
     EmuBoard board(options);
-    std::string error;
-    ASSERT_TRUE(board.Boot(&error)) << error;
-    auto client = Client::Connect(MakeInProcessTransport(&board));
-    ASSERT_TRUE(client.ok()) << client.status().ToString();
-    ASSERT_TRUE((*client)->SetConfig(Config()).ok());
-    ASSERT_TRUE((*client)->EnableMotor(true).ok());
-    ASSERT_TRUE((*client)->LoadProgram(testing::HilProgram(20)).ok());
+    std::unique_ptr<Client> client;
+    ASSERT_NO_FATAL_FAILURE(BootAndConnect(board, &client));
+    ASSERT_TRUE(client->SetConfig(Config()).ok());
+    ASSERT_TRUE(client->EnableMotor(true).ok());
+    ASSERT_TRUE(client->LoadProgram(testing::HilProgram(20)).ok());
     std::vector<TriggerEvent> triggers;
-    ASSERT_NO_FATAL_FAILURE(RunToTheEnd(**client, board, &triggers));
+    ASSERT_NO_FATAL_FAILURE(RunToTheEnd(*client, board, &triggers));
     EXPECT_EQ(triggers.size(), 80u);
     step_max[flash] = board.emu().exception_stats(kTim3Exception).max_cycles;
     trigger_max[flash] = board.emu().exception_stats(kTim2Exception).max_cycles;
@@ -296,10 +303,8 @@ TEST(EmuTailChain, TwoPendingTimerInterruptsChainAndSaveSixteenCycles) {
     options.flash_wait_states = false;
     options.tail_chaining = chaining == 1;
     EmuBoard board(options);
-    std::string error;
-    ASSERT_TRUE(board.Boot(&error)) << error;
-    auto client = Client::Connect(MakeInProcessTransport(&board));
-    ASSERT_TRUE(client.ok()) << client.status().ToString();
+    std::unique_ptr<Client> client;
+    ASSERT_NO_FATAL_FAILURE(BootAndConnect(board, &client));
     fw_emu::F411Emu& emu = board.emu();
     const fw_emu::ExceptionStats before2 = emu.exception_stats(kTim2Exception);
     const fw_emu::ExceptionStats before3 = emu.exception_stats(kTim3Exception);
@@ -314,7 +319,7 @@ TEST(EmuTailChain, TwoPendingTimerInterruptsChainAndSaveSixteenCycles) {
     spent[chaining] =
         (after2.total_cycles - before2.total_cycles) + (after3.total_cycles - before3.total_cycles);
     chains[chaining] = emu.tail_chains() - chains_before;
-    EXPECT_TRUE((*client)->Ping().ok()) << board.error();
+    EXPECT_TRUE(client->Ping().ok()) << board.error();
     EXPECT_EQ(board.error(), "");
   }
   std::printf("TIM2 + TIM3 pending together: %llu cycles tail-chained, %llu returning in between\n",
