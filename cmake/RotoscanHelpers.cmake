@@ -52,7 +52,23 @@ function(rotoscan_add_test)
   add_executable(${ARG_NAME} ${ARG_SOURCES})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} rotoscan_testing GTest::gmock GTest::gtest_main)
   include(GoogleTest)
-  gtest_discover_tests(${ARG_NAME} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${ARG_LABELS}")
+  # One label through gtest_discover_tests (it flattens lists), all of them afterwards (below).
+  list(GET ARG_LABELS 0 first_label)
+  gtest_discover_tests(${ARG_NAME} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${first_label}")
+  list(LENGTH ARG_LABELS n_labels)
+  if(n_labels GREATER 1)
+    rotoscan_label_discovered_tests(${ARG_NAME} "${ARG_LABELS}")
+  endif()
+endfunction()
+
+# gtest_discover_tests (CMake 3.25) flattens a list in its PROPERTIES: LABELS "hil;firmware" becomes LABELS hil
+# and a property named firmware, and every property after it is lost (the fixture, the timeout). A target's
+# tests get their list of labels here instead, once discovered: CTest includes this file after the
+# discovered tests, whose names are in <target>_TESTS.
+function(rotoscan_label_discovered_tests target labels)
+  set(file "${CMAKE_CURRENT_BINARY_DIR}/${target}_labels.cmake")
+  file(WRITE "${file}" "if(${target}_TESTS)\n  set_tests_properties(\${${target}_TESTS} PROPERTIES LABELS \"${labels}\")\nendif()\n")
+  set_property(DIRECTORY APPEND PROPERTY TEST_INCLUDE_FILES "${file}")
 endfunction()
 
 # rotoscan_add_benchmark(NAME <name> SOURCES ... [DEPS ...])
