@@ -42,6 +42,29 @@
 // the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
 // 1-2 px from their own centres).
 //
+// Albedo inside the line (kFlagAlbedoEdge; issue 15's textured set: a white cylinder with a 3 mm checker
+// of 10 % albedo cells, lines 8-11 px wide, cells ~15 px). The reflection is the laser's profile times
+// the albedo, so an albedo step inside the line pulls the centre of mass towards the bright side, by up to
+// a quarter of the width (±3 px measured). The laser-off frame shows the albedo through the same optics;
+// where the laser-off row over the centre-of-mass run (widened by 3 px each side) changes sharply (an edge:
+// its steepest change over 4 px holds half its range; highest > 1.6 x lowest + 4 DN, lowest >= 4 DN,
+// highest >= 12 DN; at least 3 px above and 3 below the middle of the range, so that a feature narrower
+// than the red channel resolves, or a small highlight of the lamp, is left alone), the centre
+// is the centre of mass (same 0.15 level) of the difference divided by the laser-off row blurred by a
+// Gaussian of 2 px, over the half-maximum extent widened by its width each side. Dividing by the raw
+// laser-off row is not enough: the red channel is blurred, demosaiced and JPEG'd (4:2:0), and the product
+// of the albedo and the line is blurred, not each alone. Measured per row, no smoothing, on the 1,986
+// textured rows with an edge (3 steps x 2 lasers), RMS px / share over 1 px, by the blur of the laser-off
+// row: plain centre of mass 1.67 / 64 %; divided, no blur 1.03 / 31 %; sigma 1: 0.84 / 22 %; 1.5: 0.72 /
+// 16 %; 2: 0.67 / 12 % (chosen); 2.5: 0.69 / 13 %; 3: 0.76 / 17 %; 4.5: 1.04 / 33 %; (the rows without an
+// edge: 0.55 / 0.9 %). A least-squares fit of blur(albedo x Gaussian) did worse (0.88 / 24 %). With the
+// gates, per row on 3 steps x 2 lasers: textured, the divided rows over 1 px 155 of 1,979 against 978
+// undivided (RMS within 2 px 0.58 against 1.23); glossy, 16 rows divided at a sphere's limb, where shading
+// passes the gates (the laser, coming from elsewhere, is not shaded like the ambient light): 4 over 1 px
+// against 1 (README.md's figures include it). The
+// 2 px blur is the webcam's; on frames blurred 1.2 px alone it over-blurs and the division removes only
+// about half the pull (RealFramesTest.AlbedoStepInsideTheLineIsDividedOut).
+//
 // Estimators and the saturated plateau. Real lines are 7-16 px wide and flat-topped (the on-frame clips
 // at 255), so any estimator that reads only the brightest pixel and its two neighbours is biased toward
 // the first pixel of the plateau. Here:

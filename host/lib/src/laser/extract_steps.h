@@ -37,6 +37,18 @@ constexpr double kSpeckleTerm2 = 0.08 * 0.08;
 // Internal flag of a point whose profile is lopsided (its centre of mass more than a quarter of its
 // width from the middle of its half-maximum extent): cleared before the points are returned.
 constexpr uint8_t kFlagLopsided = 0x80;
+// The albedo inside the line (point.cc, design notes "Albedo inside the line"): an edge is seen where the
+// laser-off row over the centre-of-mass run holds a value at least kAlbedoMinOffDn and its highest
+// exceeds 1.6 x its lowest + kAlbedoStepDn; the laser-off row is then blurred by a Gaussian of
+// kAlbedoBlurPx (the red channel's resolution after demosaicing and 4:2:0 chroma: measured, extract.cc)
+// before the difference is divided by it, over a window of at most kAlbedoMaxWindow pixels.
+constexpr int kAlbedoMinOffDn = 12;
+constexpr int kAlbedoMinLowDn = 4;
+constexpr int kAlbedoEdgeSpanPx = 4;
+constexpr int kAlbedoMinLevelPx = 3;
+constexpr int kAlbedoStepDn = 4;
+constexpr double kAlbedoBlurPx = 2.0;
+constexpr int kAlbedoMaxWindow = 256;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 
@@ -117,6 +129,12 @@ struct PointTerms {
   double left, right;       // sums of the laser-off row over the centre of mass's run either side of
   double left_n, right_n;   // the centre's pixel, and their pixel counts (at least 1)
 };
+
+// Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line).
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last);
+// The centre of mass of the difference divided by the blurred laser-off row, over the half-maximum extent
+// [first, last] widened by its width each side; negative when it fails.
+double AlbedoNormalisedCentre(const uint8_t* d, const uint8_t* b, int cols, int first, int last);
 
 // Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
 // of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test

@@ -50,6 +50,8 @@ enum LinePointFlag : uint8_t {
                            // background under a saturated line): counted as laser (extract.cc)
   kFlagStrongerRejected = 16,  // a much stronger candidate in the row was rejected as too narrow (a hot
                                // pixel or a glint's core): this weaker, plausible one was kept
+  kFlagAlbedoEdge = 32,  // the albedo changes inside the line (the laser-off frame shows an edge): the
+                         // centre is that of the difference divided by the albedo (extract.cc)
 };
 
 struct LinePoint {
