@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
 
 #include "rotoscan/laser/extract.h"
 #include "rotoscan/pipeline/accuracy.h"
@@ -120,6 +121,65 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
       for (int d = 1; d < 10; ++d) EXPECT_GT(rms[0], rms[d]) << file << ": tenth " << d;
     }
   }
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
+
+namespace rotoscan::laser {
+namespace {
+
+// Glints (extract.cc, "Glints") against the truth: the glossy webcam scene and the same scene with its
+// specular lobes off, rendered with the same seeds; the glint is where the glossy laser frame's red
+// exceeds the matte one within 15 px of the point (>= 30 DN: in a glint; < 5 DN: far from any). 3 steps
+// x 2 lasers.
+TEST(RenderedLineTest, GlintsAreFlaggedWhereTheTruthHasThem) {
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/glossy-webcam.json"));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  sim::Scene matte = *scene;
+  for (sim::ObjectSpec& object : matte.objects) object.specular = 0.0;
+  auto glossy_renderer = sim::Renderer::Create(*scene);
+  auto matte_renderer = sim::Renderer::Create(matte);
+  ASSERT_TRUE(glossy_renderer.ok() && matte_renderer.ok());
+  LineExtractor extractor;
+  int in_glint = 0, in_glint_flagged = 0, far = 0, far_flagged = 0, between_flagged = 0, points = 0, stats_glints = 0;
+  for (int step = 0; step < 3; ++step) {
+    const double angle = step * 2.0 * 3.14159265358979323846 / 3;
+    const uint64_t seed = sim::FrameSeed(scene->seed, 0, step, 0);
+    const sim::RenderedStep glossy = (*glossy_renderer)->RenderStep(angle, seed, {true, true, true, false});
+    const sim::RenderedStep plain = (*matte_renderer)->RenderStep(angle, seed, {true, true, false, false});
+    for (int k = 0; k < 2; ++k) {
+      Line line;
+      ASSERT_TRUE(extractor.Extract(glossy.frames[k], glossy.frames[2], &line).ok());
+      stats_glints += line.stats.glints;
+      cv::Mat g, m;
+      cv::extractChannel(glossy.frames[k], g, 2);
+      cv::extractChannel(plain.frames[k], m, 2);
+      for (const LinePoint& p : line.points) {
+        const int c = static_cast<int>(p.column + 0.5);
+        int extra = 0;
+        for (int x = std::max(0, c - 15); x <= std::min(g.cols - 1, c + 15); ++x)
+          extra = std::max(extra, g.at<uint8_t>(p.row, x) - m.at<uint8_t>(p.row, x));
+        const bool flagged = (p.flags & kFlagGlint) != 0;
+        ++points;
+        if (extra >= 30) {
+          ++in_glint;
+          in_glint_flagged += flagged;
+        } else if (extra < 5) {
+          ++far;
+          far_flagged += flagged;
+        } else {
+          between_flagged += flagged;
+        }
+      }
+    }
+  }
+  std::printf("glints: %d points, %d in a glint (%d flagged), %d far from any (%d flagged), %d flagged between\n",
+              points, in_glint, in_glint_flagged, far, far_flagged, between_flagged);
+  EXPECT_GT(in_glint, 50);  // the scene has glints
+  EXPECT_GE(in_glint_flagged, in_glint * 8 / 10);
+  EXPECT_EQ(far_flagged, 0);  // the line elsewhere is kept as it was
+  EXPECT_EQ(stats_glints, in_glint_flagged + far_flagged + between_flagged);
 }
 
 }  // namespace

@@ -65,6 +65,17 @@
 // 2 px blur is the webcam's; on frames blurred 1.2 px alone it over-blurs and the division removes only
 // about half the pull (RealFramesTest.AlbedoStepInsideTheLineIsDividedOut).
 //
+// Glints (kFlagGlint; issue 15: on real frames 17 % of the rows near a glint were over 1 px off). The
+// laser's specular lobe on a glossy surface adds a soft blob, tens of pixels across, centred near the
+// line: where it meets the line, the line is overexposed several times over, and its saturated core
+// widens more than its foot, so that the run above 0.15 of the peak is under 1.3 times the half-maximum
+// extent (a Gaussian clipped at its height gives 1.66, at a fifth of its height 1.23). A glint is a
+// compact stretch of such rows (3 in 4 of the rows within +-8), not a line overexposed all along (at
+// most half of the points within +-96 rows): its points are flagged, their quality halved, their
+// uncertainty widened by 1.6 px (the glossy set's glint rows were 0.6-1.0 px off). Tested against the
+// renderer's truth (RenderedLineTest.GlintsAreFlaggedWhereTheTruthHasThem: the glint is where the glossy
+// scene's laser frame exceeds the same scene rendered matte).
+//
 // Estimators and the saturated plateau. Real lines are 7-16 px wide and flat-topped (the on-frame clips
 // at 255), so any estimator that reads only the brightest pixel and its two neighbours is biased toward
 // the first pixel of the plateau. Here:
@@ -413,6 +424,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     previous_row = r;
   }
   detail::ScorePoints(terms.data(), frame, &line->points);
+  stats.glints = detail::FlagGlints(terms.data(), rows, &line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;
     const size_t n = points.size();

@@ -49,6 +49,20 @@ constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
 constexpr double kAlbedoBlurPx = 2.0;
 constexpr int kAlbedoMaxWindow = 256;
+// Glints (FlagGlints, design notes "Glints"): a saturated row is overexposed when the run above 0.15 of
+// its peak is under kGlintFootRatio times its half-maximum extent (a Gaussian clipped at a fifth of its
+// height: 1.23; at its height: 1.66); a point is a glint when at least kGlintShare of the rows within
+// kGlintHalfRows of it are overexposed points, and at most kGlintMaxShare of those within kGlintReachRows
+// (a compact stretch, not a line overexposed all along).
+constexpr double kGlintFootRatio = 1.3;
+constexpr int kGlintHalfRows = 8;
+constexpr double kGlintShare = 0.75;
+constexpr int kGlintReachRows = 96;
+constexpr double kGlintMaxShare = 0.5;
+// A glint's added uncertainty (px, about two standard errors: glint rows of the glossy set were 0.6-1.0 px
+// off) and quality factor.
+constexpr double kGlintUncertaintyPx = 1.6;
+constexpr double kGlintQuality = 0.5;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 
@@ -128,6 +142,8 @@ struct PointTerms {
   double peak;              // DN
   double left, right;       // sums of the laser-off row over the centre of mass's run either side of
   double left_n, right_n;   // the centre's pixel, and their pixel counts (at least 1)
+  bool overexposed;         // saturated, and its foot (the centre of mass's run) under kGlintFootRatio
+                            // times its half-maximum extent (FlagGlints)
 };
 
 // Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line).
@@ -146,6 +162,10 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
 // (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
+
+// After ScorePoints: flags the points of a compact overexposed stretch as glints (kFlagGlint), lowers
+// their quality and widens their uncertainty; returns how many. `rows`: the frame's.
+int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* points);
 
 // After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
 // not at all where the profile changes (saturation begins or ends, or kFlagLopsided).

@@ -185,6 +185,8 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   terms->width_num = c.width_num;
   terms->width_den = c.width_den;
   terms->peak = c.peak;
+  terms->overexposed = (flags & kFlagSaturated) != 0 && o.estimator == Estimator::kCenterOfMass &&
+                       c.com_last - c.com_first + 1 < kGlintFootRatio * (c.last - c.first + 1);
   // Texture across the line (ScorePoints): the laser-off row either side of the centre's pixel.
   const int middle = static_cast<int>(column + 0.5);
   const SidesSum sides = SumsAround(b, c.com_first, middle, c.com_last, cols);
@@ -249,6 +251,44 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
     p[i].uncertainty_px = static_cast<float>(uncertainty) * std::sqrt(grow);
     if (std::abs(asymmetry) > 0.25 * width) p[i].flags = flags | kFlagLopsided;
   }
+}
+
+int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& points = *line_points;
+  const size_t n = points.size();
+  if (n == 0) return 0;
+  // Prefix counts over the frame's rows of the points and of the overexposed ones.
+  thread_local std::vector<int> all, over;
+  all.assign(static_cast<size_t>(rows) + 1, 0);
+  over.assign(static_cast<size_t>(rows) + 1, 0);
+  bool any = false;
+  for (size_t i = 0; i < n; ++i) {
+    all[static_cast<size_t>(points[i].row) + 1] = 1;
+    over[static_cast<size_t>(points[i].row) + 1] = terms[i].overexposed ? 1 : 0;
+    any = any || terms[i].overexposed;
+  }
+  if (!any) return 0;
+  for (int r = 0; r < rows; ++r) {
+    all[static_cast<size_t>(r) + 1] += all[static_cast<size_t>(r)];
+    over[static_cast<size_t>(r) + 1] += over[static_cast<size_t>(r)];
+  }
+  auto count = [&](const std::vector<int>& v, int row, int half) {
+    const int lo = std::max(0, row - half), hi = std::min(rows - 1, row + half);
+    return v[static_cast<size_t>(hi) + 1] - v[static_cast<size_t>(lo)];
+  };
+  int flagged = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (!terms[i].overexposed) continue;
+    const int row = points[i].row;
+    if (count(over, row, kGlintHalfRows) < kGlintShare * (2 * kGlintHalfRows + 1)) continue;
+    if (count(over, row, kGlintReachRows) > kGlintMaxShare * count(all, row, kGlintReachRows)) continue;
+    LinePoint& p = points[i];
+    p.flags |= kFlagGlint;
+    p.quality *= static_cast<float>(kGlintQuality);
+    p.uncertainty_px = static_cast<float>(std::hypot(p.uncertainty_px, kGlintUncertaintyPx));
+    ++flagged;
+  }
+  return flagged;
 }
 
 }  // namespace detail
