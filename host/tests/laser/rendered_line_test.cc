@@ -61,7 +61,8 @@ struct PointError {
   double error;
 };
 
-std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracy* total) {
+std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracy* total,
+                                          int* glints, int* albedo_edges) {
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
   EXPECT_TRUE(scene.ok()) << scene.status().ToString();
   auto renderer = sim::Renderer::Create(*scene);
@@ -80,6 +81,8 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
       std::map<int, std::vector<double>> by_row;
       for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(t.column);
       for (const LinePoint& p : line.points) {
+        *glints += (p.flags & kFlagGlint) != 0;
+        *albedo_edges += (p.flags & kFlagAlbedoEdge) != 0;
         auto it = by_row.find(p.row);
         if (it == by_row.end()) continue;
         double best = 1e300;
@@ -92,33 +95,53 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
 }
 
 TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
-  // The textured set only asserts nothing yet and doubles the time: opt-in (ROTOSCAN_WEBCAM_FIGURES=1).
-  std::vector<const char*> files = {"glossy-webcam.json"};
-  if (std::getenv("ROTOSCAN_WEBCAM_FIGURES") != nullptr) files.push_back("textured-webcam.json");
+  std::vector<const char*> files = {"glossy-webcam.json", "textured-webcam.json"};
   for (const char* file : files) {
     pipeline::LineAccuracy total;
-    std::vector<PointError> points = WebcamPointErrors(file, 3, &total);
+    int glints = 0, albedo_edges = 0;
+    std::vector<PointError> points = WebcamPointErrors(file, 3, &total, &glints, &albedo_edges);
     ASSERT_GT(points.size(), 1000u) << file;
     const double lit = static_cast<double>(total.truth_rows);
     std::printf("%s: lit rows %zu, found %.2f %%, > 1 px off %.3f %%, rms (within 1 px) %.3f px; across the "
-                "line: > 1 px off %.3f %%, rms %.3f px\n",
+                "line: > 1 px off %.3f %%, rms %.3f px; flagged: glint %d, albedo edge %d\n",
                 file, total.truth_rows, 100.0 * (lit - total.missed) / lit, 100.0 * total.outliers / lit,
-                total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px());
+                total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px(), glints, albedo_edges);
     std::sort(points.begin(), points.end(), [](const PointError& a, const PointError& b) { return a.quality < b.quality; });
     const size_t tenth = points.size() / 10;
-    double rms[10];
+    double rms[10], clipped[10];
+    int over[10];
     for (int d = 0; d < 10; ++d) {
-      double sum = 0;
-      for (size_t i = d * tenth; i < (d + 1) * tenth; ++i) sum += points[i].error * points[i].error;
+      double sum = 0, sum_clipped = 0;
+      over[d] = 0;
+      for (size_t i = d * tenth; i < (d + 1) * tenth; ++i) {
+        const double e = std::abs(points[i].error);
+        sum += e * e;
+        sum_clipped += std::min(e, 2.0) * std::min(e, 2.0);
+        over[d] += e > 1.0;
+      }
       rms[d] = std::sqrt(sum / tenth);
+      clipped[d] = std::sqrt(sum_clipped / tenth);
     }
-    std::printf("  rms error by quality tenth (worst first):");
+    std::printf("  by quality tenth (worst first): rms");
     for (double r : rms) std::printf(" %.3f", r);
-    std::printf(" px\n");
-    // Met on the glossy set; on the textured set (10x albedo steps across the line) not yet: its errors
-    // are mostly the texture's pull on the centre, which the quality sees only in part (issue 15, open).
+    std::printf(" px\n  errors clipped at 2 px, rms");
+    for (double r : clipped) std::printf(" %.3f", r);
+    std::printf(" px\n  over 1 px");
+    for (int o : over) std::printf(" %d", o);
+    std::printf(" of %zu\n", tenth);
     if (std::string(file) == "glossy-webcam.json") {
+      // The worst-quality tenth has the largest errors.
       for (int d = 1; d < 10; ++d) EXPECT_GT(rms[0], rms[d]) << file << ": tenth " << d;
+    } else {
+      // Textured: the worst tenth's errors are well above the better half's (measured: clipped rms 1.01
+      // against at most 0.57 px, over 1 px 99 against at most 22 of 306), but not above every other
+      // tenth's: the third-worst (mostly points whose albedo was divided out) ties with it, and a few
+      // gross errors at the cylinder's rim (a nearly horizontal line there, measured per row) sit in the
+      // middle tenths (issue 15, open).
+      for (int d = 5; d < 10; ++d) {
+        EXPECT_GT(clipped[0], 1.5 * clipped[d]) << file << ": tenth " << d;
+        EXPECT_GT(over[0], 2 * over[d]) << file << ": tenth " << d;
+      }
     }
   }
 }

@@ -63,6 +63,8 @@ constexpr double kGlintMaxShare = 0.5;
 // off) and quality factor.
 constexpr double kGlintUncertaintyPx = 1.6;
 constexpr double kGlintQuality = 0.5;
+// ScoreLineEnds: how many points at either end of a stretch lose quality.
+constexpr int kLineEndRows = 8;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 
@@ -162,6 +164,11 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
 // (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
+
+// After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows in
+// a row, no jump over max_jump_px) falls to 1 / (kLineEndRows + 1), 2 / ... of its value: a line ends at
+// a depth edge, a rim or a silhouette, where the sheet's footprint is cut and the profile partial.
+void ScoreLineEnds(double max_jump_px, std::vector<LinePoint>* points);
 
 // After ScorePoints: flags the points of a compact overexposed stretch as glints (kFlagGlint), lowers
 // their quality and widens their uncertainty; returns how many. `rows`: the frame's.

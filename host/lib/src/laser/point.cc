@@ -253,6 +253,25 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
   }
 }
 
+void ScoreLineEnds(double max_jump_px, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& points = *line_points;
+  const size_t n = points.size();
+  size_t start = 0;
+  while (start < n) {
+    // The stretch [start, end): consecutive rows, no jump over max_jump_px (as the smoothing's).
+    size_t end = start + 1;
+    while (end < n && points[end].row == points[end - 1].row + 1 &&
+           std::abs(points[end].column - points[end - 1].column) <= max_jump_px)
+      ++end;
+    for (size_t i = start; i < end; ++i) {
+      const size_t from_end = std::min(i - start, end - 1 - i);
+      if (from_end < static_cast<size_t>(kLineEndRows))
+        points[i].quality *= static_cast<float>(from_end + 1) / static_cast<float>(kLineEndRows + 1);
+    }
+    start = end;
+  }
+}
+
 int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& points = *line_points;
   const size_t n = points.size();
