@@ -427,7 +427,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     previous_row = r;
   }
   detail::ScorePoints(terms.data(), frame, &line->points);
-  detail::ScoreLineEnds(o.smooth_max_jump_px, &line->points);
+  detail::ScoreLineEnds(o.smooth_max_jump_px, rows, &line->points);
   stats.glints = detail::FlagGlints(terms.data(), rows, &line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;

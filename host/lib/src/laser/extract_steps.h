@@ -165,10 +165,11 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 // (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
 
-// After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows in
-// a row, no jump over max_jump_px) falls to 1 / (kLineEndRows + 1), 2 / ... of its value: a line ends at
-// a depth edge, a rim or a silhouette, where the sheet's footprint is cut and the profile partial.
-void ScoreLineEnds(double max_jump_px, std::vector<LinePoint>* points);
+// After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows at
+// most 2 apart, no jump over max_jump_px per row) falls to 1 / (kLineEndRows + 1), 2 / ... of its value:
+// a line ends at a depth edge, a rim or a silhouette, where the sheet's footprint is cut and the profile
+// partial. Ends at the frame's first or last 2 rows (of `rows`) are the frame's, and keep their quality.
+void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* points);
 
 // After ScorePoints: flags the points of a compact overexposed stretch as glints (kFlagGlint), lowers
 // their quality and widens their uncertainty; returns how many. `rows`: the frame's.

@@ -253,18 +253,26 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
   }
 }
 
-void ScoreLineEnds(double max_jump_px, std::vector<LinePoint>* line_points) {
+void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& points = *line_points;
   const size_t n = points.size();
   size_t start = 0;
   while (start < n) {
-    // The stretch [start, end): consecutive rows, no jump over max_jump_px (as the smoothing's).
+    // The stretch [start, end): rows at most 2 apart (as the row loop's continuity), no jump over
+    // max_jump_px per row.
     size_t end = start + 1;
-    while (end < n && points[end].row == points[end - 1].row + 1 &&
-           std::abs(points[end].column - points[end - 1].column) <= max_jump_px)
+    while (end < n) {
+      const int gap = points[end].row - points[end - 1].row;
+      if (gap > 2 || std::abs(points[end].column - points[end - 1].column) > max_jump_px * gap) break;
       ++end;
+    }
+    // An end at the image's first or last rows is the frame's edge, not the line's.
+    const bool open_top = points[start].row > 1;
+    const bool open_bottom = points[end - 1].row < rows - 2;
     for (size_t i = start; i < end; ++i) {
-      const size_t from_end = std::min(i - start, end - 1 - i);
+      size_t from_end = static_cast<size_t>(kLineEndRows);
+      if (open_top) from_end = std::min(from_end, i - start);
+      if (open_bottom) from_end = std::min(from_end, end - 1 - i);
       if (from_end < static_cast<size_t>(kLineEndRows))
         points[i].quality *= static_cast<float>(from_end + 1) / static_cast<float>(kLineEndRows + 1);
     }
