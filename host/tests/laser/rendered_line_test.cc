@@ -307,10 +307,6 @@ TEST(SpeckleLimitTest, PerRowScatterAgainstDorsch) {
   EXPECT_LT(cases[0].ideal / cases[3].ideal, 2.5);
   // The f/4 limit per row is above issue 15's 0.25 px target for the webcam's line, whatever the extractor.
   EXPECT_GT(cases[0].ideal, 0.25);
-  // A line broken into grains is still a line (Candidate::SpeckledLine): without it 10 % of the f/4 rows
-  // were dropped as too narrow (issue 15's third failure: 15 % on another renderer's f/4 frames); measured
-  // 98.3-100 % found with the webcam's line.
-  for (size_t i : {0, 2, 3, 4, 5}) EXPECT_GT(cases[i].found, 0.95) << "case " << i;
 }
 
 }  // namespace

@@ -105,7 +105,7 @@ int ChooseCandidate(const Candidate* candidates, int count, const ExtractOptions
       any_off_saturated = true;
       continue;
     }
-    if (!c.Plausible(o.min_width_px, o.max_width_px)) continue;
+    if (!c.WidthWithin(o.min_width_px, o.max_width_px)) continue;
     if (best < 0 || c.peak > candidates[best].peak) best = k;
   }
   if (best < 0) {
@@ -124,7 +124,7 @@ int ChooseCandidate(const Candidate* candidates, int count, const ExtractOptions
     // laser itself: the row gets no point rather than a stray one (ExtractTest.NeverAWeakCandidate...).
     const Candidate& s = candidates[strongest];
     if (strongest != best && candidates[best].peak < o.multiple_peak_ratio * s.peak) {
-      if (!s.off_saturated && s.width_num < o.min_width_px * s.width_den && !s.SpeckledLine(o.min_width_px)) {
+      if (!s.off_saturated && s.width_num < o.min_width_px * s.width_den) {
         flags |= kFlagStrongerRejected;
       } else {
         ++stats->stronger_rejected;
@@ -134,7 +134,7 @@ int ChooseCandidate(const Candidate* candidates, int count, const ExtractOptions
   }
   for (int k = 0; k < count; ++k) {
     const Candidate& c = candidates[k];
-    if (k == best || c.off_saturated || !c.Plausible(o.min_width_px, o.max_width_px)) continue;
+    if (k == best || c.off_saturated || !c.WidthWithin(o.min_width_px, o.max_width_px)) continue;
     if (c.peak >= o.multiple_peak_ratio * candidates[best].peak) {
       flags |= kFlagMultiplePeaks;
       const Candidate& cb = candidates[best];

@@ -19,9 +19,7 @@
 //     Runs within kMergeGapPx of the previous candidate's half-maximum extent join it (a dark speckle
 //     grain or a noise dip inside one line).
 //  4. Candidates narrower than min_width (glints, hot pixels) or wider than max_width (ambient blobs) are
-//     dropped; but one narrower at half maximum whose run above 0.15 of its peak is at least 5 px wide is a
-//     line broken into speckle grains (its brightest grain sets the half maximum), and stays (issue 15:
-//     fully developed f/4 speckle without blur dropped 10 % of the rows, now 1.7 %; SpeckleLimitTest). Of the others the highest peak wins; a rival within multiple_peak_ratio of it flags the row
+//     dropped. Of the others the highest peak wins; a rival within multiple_peak_ratio of it flags the row
 //     (kFlagMultiplePeaks), and then the one nearer the previous row's point wins (lines are continuous).
 //     The winner is never much weaker (below multiple_peak_ratio) than a rejected candidate unless that
 //     one was too narrow (a hot pixel, a glint's core: kFlagStrongerRejected); a much stronger one that

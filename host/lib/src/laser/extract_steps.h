@@ -65,9 +65,6 @@ constexpr double kGlintUncertaintyPx = 1.6;
 constexpr double kGlintQuality = 0.5;
 // ScoreLineEnds: how many points at either end of a stretch lose quality.
 constexpr int kLineEndRows = 8;
-// Candidate::SpeckledLine: the least run above 0.15 of the peak of a line whose half-maximum width is
-// too narrow (measured on fully developed f/4 speckle without blur, SpeckleLimitTest).
-constexpr int kSpeckledFootPx = 5;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 
@@ -102,15 +99,6 @@ struct Candidate {
   bool off_saturated = false;
   bool WidthWithin(double min_width, double max_width) const {
     return width_num >= min_width * width_den && width_num <= max_width * width_den;
-  }
-  // Narrower than min_width at half maximum but wide at the centre of mass's level: a line broken into
-  // speckle grains (its brightest grain sets the half maximum), not a hot pixel or a glint's core, whose
-  // foot is as narrow as its top (kCenterOfMass only: the other estimators leave com_* at 0).
-  bool SpeckledLine(double min_width) const {
-    return width_num < min_width * width_den && com_last - com_first + 1 >= kSpeckledFootPx;
-  }
-  bool Plausible(double min_width, double max_width) const {
-    return WidthWithin(min_width, max_width) || SpeckledLine(min_width);
   }
   double Width() const { return static_cast<double>(width_num) / width_den; }
 };
