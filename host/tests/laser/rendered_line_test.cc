@@ -11,6 +11,8 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rotoscan/laser/extract.h"
 #include "rotoscan/pipeline/accuracy.h"
@@ -60,7 +62,8 @@ struct PointError {
   double error;
 };
 
-std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracy* total) {
+std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracy* total,
+                                          int* glints, int* albedo_edges) {
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
   EXPECT_TRUE(scene.ok()) << scene.status().ToString();
   auto renderer = sim::Renderer::Create(*scene);
@@ -79,6 +82,8 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
       std::map<int, std::vector<double>> by_row;
       for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(t.column);
       for (const LinePoint& p : line.points) {
+        *glints += (p.flags & kFlagGlint) != 0;
+        *albedo_edges += (p.flags & kFlagAlbedoEdge) != 0;
         auto it = by_row.find(p.row);
         if (it == by_row.end()) continue;
         double best = 1e300;
@@ -91,35 +96,217 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
 }
 
 TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
-  // The textured set only asserts nothing yet and doubles the time: opt-in (ROTOSCAN_WEBCAM_FIGURES=1).
-  std::vector<const char*> files = {"glossy-webcam.json"};
-  if (std::getenv("ROTOSCAN_WEBCAM_FIGURES") != nullptr) files.push_back("textured-webcam.json");
+  std::vector<const char*> files = {"glossy-webcam.json", "textured-webcam.json"};
   for (const char* file : files) {
     pipeline::LineAccuracy total;
-    std::vector<PointError> points = WebcamPointErrors(file, 3, &total);
+    int glints = 0, albedo_edges = 0;
+    std::vector<PointError> points = WebcamPointErrors(file, 3, &total, &glints, &albedo_edges);
     ASSERT_GT(points.size(), 1000u) << file;
     const double lit = static_cast<double>(total.truth_rows);
     std::printf("%s: lit rows %zu, found %.2f %%, > 1 px off %.3f %%, rms (within 1 px) %.3f px; across the "
-                "line: > 1 px off %.3f %%, rms %.3f px\n",
+                "line: > 1 px off %.3f %%, rms %.3f px; flagged: glint %d, albedo edge %d\n",
                 file, total.truth_rows, 100.0 * (lit - total.missed) / lit, 100.0 * total.outliers / lit,
-                total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px());
+                total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px(), glints, albedo_edges);
     std::sort(points.begin(), points.end(), [](const PointError& a, const PointError& b) { return a.quality < b.quality; });
     const size_t tenth = points.size() / 10;
-    double rms[10];
+    double rms[10], clipped[10];
+    int over[10];
     for (int d = 0; d < 10; ++d) {
-      double sum = 0;
-      for (size_t i = d * tenth; i < (d + 1) * tenth; ++i) sum += points[i].error * points[i].error;
+      double sum = 0, sum_clipped = 0;
+      over[d] = 0;
+      for (size_t i = d * tenth; i < (d + 1) * tenth; ++i) {
+        const double e = std::abs(points[i].error);
+        sum += e * e;
+        sum_clipped += std::min(e, 2.0) * std::min(e, 2.0);
+        over[d] += e > 1.0;
+      }
       rms[d] = std::sqrt(sum / tenth);
+      clipped[d] = std::sqrt(sum_clipped / tenth);
     }
-    std::printf("  rms error by quality tenth (worst first):");
+    std::printf("  by quality tenth (worst first): rms");
     for (double r : rms) std::printf(" %.3f", r);
-    std::printf(" px\n");
-    // Met on the glossy set; on the textured set (10x albedo steps across the line) not yet: its errors
-    // are mostly the texture's pull on the centre, which the quality sees only in part (issue 15, open).
+    std::printf(" px\n  errors clipped at 2 px, rms");
+    for (double r : clipped) std::printf(" %.3f", r);
+    std::printf(" px\n  over 1 px");
+    for (int o : over) std::printf(" %d", o);
+    std::printf(" of %zu\n", tenth);
     if (std::string(file) == "glossy-webcam.json") {
+      // The worst-quality tenth has the largest errors.
       for (int d = 1; d < 10; ++d) EXPECT_GT(rms[0], rms[d]) << file << ": tenth " << d;
+    } else {
+      // Textured: the worst tenth's errors are well above the better half's (measured: clipped rms 1.01
+      // against at most 0.57 px, over 1 px 99 against at most 22 of 306), but not above every other
+      // tenth's: the third-worst (mostly points whose albedo was divided out) ties with it, and a few
+      // gross errors at the cylinder's rim (a nearly horizontal line there, measured per row) sit in the
+      // middle tenths (issue 15, open).
+      for (int d = 5; d < 10; ++d) {
+        EXPECT_GT(clipped[0], 1.5 * clipped[d]) << file << ": tenth " << d;
+        EXPECT_GT(over[0], 2 * over[d]) << file << ": tenth " << d;
+      }
     }
   }
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
+
+namespace rotoscan::laser {
+namespace {
+
+// Glints (extract.cc, "Glints") against the truth: the glossy webcam scene and the same scene with its
+// specular lobes off, rendered with the same seeds; the glint is where the glossy laser frame's red
+// exceeds the matte one within 15 px of the point (>= 30 DN: in a glint; < 5 DN: far from any). 3 steps
+// x 2 lasers.
+TEST(RenderedLineTest, GlintsAreFlaggedWhereTheTruthHasThem) {
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/glossy-webcam.json"));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  sim::Scene matte = *scene;
+  for (sim::ObjectSpec& object : matte.objects) object.specular = 0.0;
+  auto glossy_renderer = sim::Renderer::Create(*scene);
+  auto matte_renderer = sim::Renderer::Create(matte);
+  ASSERT_TRUE(glossy_renderer.ok() && matte_renderer.ok());
+  LineExtractor extractor;
+  int in_glint = 0, in_glint_flagged = 0, far = 0, far_flagged = 0, between_flagged = 0, points = 0, stats_glints = 0;
+  for (int step = 0; step < 3; ++step) {
+    const double angle = step * 2.0 * 3.14159265358979323846 / 3;
+    const uint64_t seed = sim::FrameSeed(scene->seed, 0, step, 0);
+    const sim::RenderedStep glossy = (*glossy_renderer)->RenderStep(angle, seed, {true, true, true, false});
+    const sim::RenderedStep plain = (*matte_renderer)->RenderStep(angle, seed, {true, true, false, false});
+    for (int k = 0; k < 2; ++k) {
+      Line line;
+      ASSERT_TRUE(extractor.Extract(glossy.frames[k], glossy.frames[2], &line).ok());
+      stats_glints += line.stats.glints;
+      cv::Mat g, m;
+      cv::extractChannel(glossy.frames[k], g, 2);
+      cv::extractChannel(plain.frames[k], m, 2);
+      for (const LinePoint& p : line.points) {
+        const int c = static_cast<int>(p.column + 0.5);
+        int extra = 0;
+        for (int x = std::max(0, c - 15); x <= std::min(g.cols - 1, c + 15); ++x)
+          extra = std::max(extra, g.at<uint8_t>(p.row, x) - m.at<uint8_t>(p.row, x));
+        const bool flagged = (p.flags & kFlagGlint) != 0;
+        ++points;
+        if (extra >= 30) {
+          ++in_glint;
+          in_glint_flagged += flagged;
+        } else if (extra < 5) {
+          ++far;
+          far_flagged += flagged;
+        } else {
+          between_flagged += flagged;
+        }
+      }
+    }
+  }
+  std::printf("glints: %d points, %d in a glint (%d flagged), %d far from any (%d flagged), %d flagged between\n",
+              points, in_glint, in_glint_flagged, far, far_flagged, between_flagged);
+  EXPECT_GT(in_glint, 50);  // the scene has glints
+  EXPECT_GE(in_glint_flagged, in_glint * 8 / 10);
+  EXPECT_EQ(far_flagged, 0);  // the line elsewhere is kept as it was
+  EXPECT_EQ(stats_glints, in_glint_flagged + far_flagged + between_flagged);
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
+
+namespace rotoscan::laser {
+namespace {
+
+// The speckle limit of the line centre (README, issue 15): Dorsch, Haeusler and Herrmann (Applied Optics
+// 33(7), 1994) give the centre uncertainty in the image plane as C lambda F# / pi, C the speckle contrast
+// (1 for fully developed speckle): at 660 nm and 2.8 um pixels 0.30 px at f/4, 0.18 px at f/2.4 and 0.15 px
+// at f/2.0. Here a perfect straight vertical line (a Gaussian profile, no blur, no noise, no JPEG, no
+// texture), each pixel the integral over its cells of the profile times the renderer's fully developed
+// speckle field (sim::SpeckleIntensity, as the renderer forms it), 8-bit; the extractor's per-row centre
+// against the true one, per row and smoothed along the line (defaults), over several seeds.
+TEST(SpeckleLimitTest, PerRowScatterAgainstDorsch) {
+  const double pixel_um = 2.8, wavelength_nm = 660.0;
+  const int rows = 256, cols = 96, seeds = 4;
+  const double centre = 47.3;
+  struct Case {
+    double f_number, sigma_px, blur_px;
+    double per_row = 0, smoothed = 0, found = 0, ideal = 0, over_1px = 0;
+  };
+  // The webcam preset's line (sigma 3.4 px: its 0.7 mm sheet at ~0.2 mm per pixel) and a narrower one;
+  // f/4 (the renderer's webcam preset), f/2.4 and f/2.0 (a webcam's own lens: README); with no blur, and
+  // with the preset's optical blur of 1.2 px (after the speckle, as the renderer does).
+  std::vector<Case> cases = {{4.0, 3.4, 0.0}, {4.0, 1.5, 0.0}, {2.4, 3.4, 0.0}, {2.0, 3.4, 0.0},
+                             {4.0, 3.4, 1.2}, {2.4, 3.4, 1.2}};
+  for (Case& c : cases) {
+    const int over = sim::SpeckleOversampling(pixel_um, wavelength_nm, c.f_number);
+    double sum_row = 0, sum_smooth = 0, sum_ideal = 0;
+    size_t n_row = 0, n_smooth = 0, n_over = 0;
+    for (int seed = 1; seed <= seeds; ++seed) {
+      const cv::Mat speckle = sim::SpeckleIntensity(rows, cols, pixel_um, wavelength_nm, c.f_number, over,
+                                                    static_cast<uint64_t>(seed));
+      cv::Mat on(rows, cols, CV_8UC1), off(rows, cols, CV_8UC1, cv::Scalar(10));
+      cv::Mat image(rows, cols, CV_64F);
+      for (int r = 0; r < rows; ++r) {
+        for (int x = 0; x < cols; ++x) {
+          double sum = 0;
+          for (int i = 0; i < over; ++i) {
+            for (int j = 0; j < over; ++j) {
+              const double xc = x - 0.5 + (j + 0.5) / over - centre;
+              sum += std::exp(-0.5 * xc * xc / (c.sigma_px * c.sigma_px)) * speckle.at<float>(r * over + i, x * over + j);
+            }
+          }
+          image.at<double>(r, x) = 60.0 * sum / (over * over);
+        }
+      }
+      if (c.blur_px > 0) cv::GaussianBlur(image, image, cv::Size(0, 0), c.blur_px, c.blur_px, cv::BORDER_REPLICATE);
+      for (int r = 0; r < rows; ++r)
+        for (int x = 0; x < cols; ++x) on.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(10.0 + image.at<double>(r, x));
+      // The physical limit of a centroid: the centre of mass of the whole profile (the difference over
+      // +-3 sigma around the true centre, no threshold), which no extractor can beat by much.
+      for (int r = 0; r < rows; ++r) {
+        double m = 0, mx = 0;
+        for (int x = static_cast<int>(centre - 3 * c.sigma_px); x <= static_cast<int>(centre + 3 * c.sigma_px) + 1; ++x) {
+          const double v = on.at<uint8_t>(r, x) - 10.0;
+          m += v;
+          mx += v * x;
+        }
+        sum_ideal += (mx / m - centre) * (mx / m - centre);
+      }
+      for (int smooth : {0, 1}) {
+        ExtractOptions o;
+        o.noise_dn = 1.0;  // no noise here: the threshold of a clean frame
+        if (smooth == 0) o.smooth_half_rows = 0;
+        auto line = ExtractLine(on, off, o);
+        ASSERT_TRUE(line.ok());
+        for (const LinePoint& p : line->points) {
+          const double e = p.column - centre;
+          (smooth ? sum_smooth : sum_row) += e * e;
+          if (smooth == 0 && std::abs(e) > 1.0) ++n_over;
+          ++(smooth ? n_smooth : n_row);
+        }
+      }
+    }
+    c.found = static_cast<double>(n_row) / (rows * seeds);
+    c.ideal = std::sqrt(sum_ideal / (rows * seeds));
+    c.over_1px = static_cast<double>(n_over) / static_cast<double>(n_row);
+    c.per_row = std::sqrt(sum_row / static_cast<double>(n_row));
+    c.smoothed = std::sqrt(sum_smooth / static_cast<double>(n_smooth));
+    const double dorsch = wavelength_nm * 1e-3 * c.f_number / 3.14159265358979323846 / pixel_um;
+    std::printf("speckle f/%.1f, line sigma %.1f px, blur %.1f px: whole-profile centroid %.3f px per row (C = %.2f); the "
+                "extractor: rows found %.1f %%, over 1 px %.1f %%, per row %.3f px (C = %.2f), smoothed %.3f px; "
+                "Dorsch (C = 1) %.3f px\n",
+                c.f_number, c.sigma_px, c.blur_px, c.ideal, c.ideal / dorsch, 100.0 * c.found, 100.0 * c.over_1px, c.per_row,
+                c.per_row / dorsch, c.smoothed, dorsch);
+  }
+  // Against the published figure: unblurred, the whole-profile centroid scatters at least as much as
+  // Dorsch's limit with C = 1 and at most 2.5 times it (measured C 1.2 for the narrow line, 2.0-2.3 for
+  // the wide ones: a multiplicative speckle field over a profile wider than the grain moves its centroid
+  // by ~sqrt(width x grain), where Dorsch's spot is about one grain), and it scales with F# as the formula
+  // does (f/4 against f/2.0: 2.0 by the formula, measured 1.75; tolerance 1.5-2.5).
+  for (size_t i = 0; i < 4; ++i) {
+    const double dorsch = wavelength_nm * 1e-3 * cases[i].f_number / 3.14159265358979323846 / pixel_um;
+    EXPECT_GE(cases[i].ideal, dorsch) << "case " << i;
+    EXPECT_LE(cases[i].ideal, 2.5 * dorsch) << "case " << i;
+  }
+  EXPECT_GT(cases[0].ideal / cases[3].ideal, 1.5);
+  EXPECT_LT(cases[0].ideal / cases[3].ideal, 2.5);
+  // The f/4 limit per row is above issue 15's 0.25 px target for the webcam's line, whatever the extractor.
+  EXPECT_GT(cases[0].ideal, 0.25);
 }
 
 }  // namespace

@@ -36,11 +36,48 @@
 // u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2), computed for all of a frame's points after the row loop
 // (ScorePoints: its divisions and roots then overlap instead of stalling each row). The quality is
 // divided by 1 + u^2, so that the points of lowest quality are those with the largest expected errors
-// (RenderedLineTest.WebcamQuality...). The
+// (RenderedLineTest.WebcamQuality...), and that of the 8 points at either end of a stretch of line falls
+// by 1/9, 2/9, ... (ScoreLineEnds: a line ends at a rim, a depth edge or a silhouette, where the sheet's
+// footprint is cut; on the textured webcam set the gross errors were there, and with 8 rather than 4 the
+// best three tenths' clipped RMS went from 0.51 / 0.42 / 0.42 to 0.44 / 0.39 / 0.42 px). The
 // along-line smoothing moves a point by at most u, and not at all where saturation begins or ends
 // between neighbouring rows or where the profile is lopsided (its asymmetry over a quarter of W): there
 // the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
 // 1-2 px from their own centres).
+//
+// Albedo inside the line (kFlagAlbedoEdge; issue 15's textured set: a white cylinder with a 3 mm checker
+// of 10 % albedo cells, lines 8-11 px wide, cells ~15 px). The reflection is the laser's profile times
+// the albedo, so an albedo step inside the line pulls the centre of mass towards the bright side, by up to
+// a quarter of the width (±3 px measured). The laser-off frame shows the albedo through the same optics;
+// where the laser-off row over the centre-of-mass run (widened by 3 px each side) changes sharply (an edge:
+// its steepest change over 4 px holds half its range; highest > 1.6 x lowest + 4 DN, lowest >= 4 DN,
+// highest >= 12 DN; at least 3 px above and 3 below the middle of the range, so that a feature narrower
+// than the red channel resolves, or a small highlight of the lamp, is left alone), the centre
+// is the centre of mass (same 0.15 level) of the difference divided by the laser-off row blurred by a
+// Gaussian of 2 px, over the half-maximum extent widened by its width each side. Dividing by the raw
+// laser-off row is not enough: the red channel is blurred, demosaiced and JPEG'd (4:2:0), and the product
+// of the albedo and the line is blurred, not each alone. Measured per row, no smoothing, on the 1,986
+// textured rows with an edge (3 steps x 2 lasers), RMS px / share over 1 px, by the blur of the laser-off
+// row: plain centre of mass 1.67 / 64 %; divided, no blur 1.03 / 31 %; sigma 1: 0.84 / 22 %; 1.5: 0.72 /
+// 16 %; 2: 0.67 / 12 % (chosen); 2.5: 0.69 / 13 %; 3: 0.76 / 17 %; 4.5: 1.04 / 33 %; (the rows without an
+// edge: 0.55 / 0.9 %). A least-squares fit of blur(albedo x Gaussian) did worse (0.88 / 24 %). With the
+// gates, per row on 3 steps x 2 lasers: textured, the divided rows over 1 px 155 of 1,979 against 978
+// undivided (RMS within 2 px 0.58 against 1.23); glossy, 16 rows divided at a sphere's limb, where shading
+// passes the gates (the laser, coming from elsewhere, is not shaded like the ambient light): 4 over 1 px
+// against 1 (README.md's figures include it). The
+// 2 px blur is the webcam's; on frames blurred 1.2 px alone it over-blurs and the division removes only
+// about half the pull (RealFramesTest.AlbedoStepInsideTheLineIsDividedOut).
+//
+// Glints (kFlagGlint; issue 15: on real frames 17 % of the rows near a glint were over 1 px off). The
+// laser's specular lobe on a glossy surface adds a soft blob, tens of pixels across, centred near the
+// line: where it meets the line, the line is overexposed several times over, and its saturated core
+// widens more than its foot, so that the run above 0.15 of the peak is under 1.3 times the half-maximum
+// extent (a Gaussian clipped at its height gives 1.66, at a fifth of its height 1.23). A glint is a
+// compact stretch of such rows (3 in 4 of the rows within +-8), not a line overexposed all along (at
+// most half of the points within +-96 rows): its points are flagged, their quality halved, their
+// uncertainty widened by 1.6 px (the glossy set's glint rows were 0.6-1.0 px off). Tested against the
+// renderer's truth (RenderedLineTest.GlintsAreFlaggedWhereTheTruthHasThem: the glint is where the glossy
+// scene's laser frame exceeds the same scene rendered matte).
 //
 // Estimators and the saturated plateau. Real lines are 7-16 px wide and flat-topped (the on-frame clips
 // at 255), so any estimator that reads only the brightest pixel and its two neighbours is biased toward
@@ -390,6 +427,8 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     previous_row = r;
   }
   detail::ScorePoints(terms.data(), frame, &line->points);
+  detail::ScoreLineEnds(o.smooth_max_jump_px, rows, &line->points);
+  stats.glints = detail::FlagGlints(terms.data(), rows, &line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;
     const size_t n = points.size();

@@ -37,6 +37,34 @@ constexpr double kSpeckleTerm2 = 0.08 * 0.08;
 // Internal flag of a point whose profile is lopsided (its centre of mass more than a quarter of its
 // width from the middle of its half-maximum extent): cleared before the points are returned.
 constexpr uint8_t kFlagLopsided = 0x80;
+// The albedo inside the line (point.cc, design notes "Albedo inside the line"): an edge is seen where the
+// laser-off row over the centre-of-mass run holds a value at least kAlbedoMinOffDn and its highest
+// exceeds 1.6 x its lowest + kAlbedoStepDn; the laser-off row is then blurred by a Gaussian of
+// kAlbedoBlurPx (the red channel's resolution after demosaicing and 4:2:0 chroma: measured, extract.cc)
+// before the difference is divided by it, over a window of at most kAlbedoMaxWindow pixels.
+constexpr int kAlbedoMinOffDn = 12;
+constexpr int kAlbedoMinLowDn = 4;
+constexpr int kAlbedoEdgeSpanPx = 4;
+constexpr int kAlbedoMinLevelPx = 3;
+constexpr int kAlbedoStepDn = 4;
+constexpr double kAlbedoBlurPx = 2.0;
+constexpr int kAlbedoMaxWindow = 256;
+// Glints (FlagGlints, design notes "Glints"): a saturated row is overexposed when the run above 0.15 of
+// its peak is under kGlintFootRatio times its half-maximum extent (a Gaussian clipped at a fifth of its
+// height: 1.23; at its height: 1.66); a point is a glint when at least kGlintShare of the rows within
+// kGlintHalfRows of it are overexposed points, and at most kGlintMaxShare of those within kGlintReachRows
+// (a compact stretch, not a line overexposed all along).
+constexpr double kGlintFootRatio = 1.3;
+constexpr int kGlintHalfRows = 8;
+constexpr double kGlintShare = 0.75;
+constexpr int kGlintReachRows = 96;
+constexpr double kGlintMaxShare = 0.5;
+// A glint's added uncertainty (px, about two standard errors: glint rows of the glossy set were 0.6-1.0 px
+// off) and quality factor.
+constexpr double kGlintUncertaintyPx = 1.6;
+constexpr double kGlintQuality = 0.5;
+// ScoreLineEnds: how many points at either end of a stretch lose quality.
+constexpr int kLineEndRows = 8;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 
@@ -116,7 +144,15 @@ struct PointTerms {
   double peak;              // DN
   double left, right;       // sums of the laser-off row over the centre of mass's run either side of
   double left_n, right_n;   // the centre's pixel, and their pixel counts (at least 1)
+  bool overexposed;         // saturated, and its foot (the centre of mass's run) under kGlintFootRatio
+                            // times its half-maximum extent (FlagGlints)
 };
+
+// Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line).
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last);
+// The centre of mass of the difference divided by the blurred laser-off row, over the half-maximum extent
+// [first, last] widened by its width each side; negative when it fails.
+double AlbedoNormalisedCentre(const uint8_t* d, const uint8_t* b, int cols, int first, int last);
 
 // Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
 // of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test
@@ -128,6 +164,16 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
 // (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
+
+// After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows at
+// most 2 apart, no jump over max_jump_px per row) falls to 1 / (kLineEndRows + 1), 2 / ... of its value:
+// a line ends at a depth edge, a rim or a silhouette, where the sheet's footprint is cut and the profile
+// partial. Ends at the frame's first or last 2 rows (of `rows`) are the frame's, and keep their quality.
+void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* points);
+
+// After ScorePoints: flags the points of a compact overexposed stretch as glints (kFlagGlint), lowers
+// their quality and widens their uncertainty; returns how many. `rows`: the frame's.
+int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* points);
 
 // After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
 // not at all where the profile changes (saturation begins or ends, or kFlagLopsided).

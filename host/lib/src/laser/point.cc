@@ -67,6 +67,87 @@ double EstimateCentre(Estimator estimator, const uint8_t* d, int size, int first
 
 namespace detail {
 
+namespace {
+
+// The Gaussian kernel of kAlbedoBlurPx, radius 3 sigma.
+constexpr int kAlbedoRadius = 6;
+struct AlbedoKernel {
+  double w[2 * kAlbedoRadius + 1];
+  AlbedoKernel() {
+    for (int k = -kAlbedoRadius; k <= kAlbedoRadius; ++k)
+      w[k + kAlbedoRadius] = std::exp(-0.5 * k * k / (kAlbedoBlurPx * kAlbedoBlurPx));
+  }
+};
+
+}  // namespace
+
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
+  if (last - first < 3) return false;
+  int low = 255, high = 0;
+  for (int i = first; i <= last; ++i) {
+    low = std::min(low, int{b[i]});
+    high = std::max(high, int{b[i]});
+  }
+  if (!(low >= kAlbedoMinLowDn && high >= kAlbedoMinOffDn && 5 * high > 8 * low + 5 * kAlbedoStepDn)) return false;
+  // An edge, not shading: the steepest change over kAlbedoEdgeSpanPx pixels holds at least half of the
+  // range. Shading (a limb, a surface turning away from the lamp) ramps over many pixels, and the laser,
+  // coming from elsewhere, is not shaded like the ambient light: dividing by it would add an error
+  // (measured on the glossy set: 114 rows so divided at a sphere's limb had 20 over 1 px against 9).
+  int steepest = 0;
+  for (int i = first; i + kAlbedoEdgeSpanPx <= last; ++i)
+    steepest = std::max(steepest, std::abs(int{b[i + kAlbedoEdgeSpanPx]} - int{b[i]}));
+  if (2 * steepest < high - low) return false;
+  // Both levels resolved: at least kAlbedoMinLevelPx pixels above and below the middle of the range. The
+  // red channel does not resolve a narrower feature (4:2:0 chroma and demosaicing halve its resolution,
+  // the optics blur it), so the division would only add the blurs' mismatch; and a small bright spot of
+  // the laser-off frame may be a lamp's highlight, which the laser, coming from elsewhere, does not share
+  // (RealFramesTest.DesignStatisticsWithNotches...: a 2 px texel).
+  const int middle = high + low;  // doubled
+  int above = 0;
+  for (int i = first; i <= last; ++i) above += 2 * b[i] > middle;
+  return above >= kAlbedoMinLevelPx && last - first + 1 - above >= kAlbedoMinLevelPx;
+}
+
+double AlbedoNormalisedCentre(const uint8_t* d, const uint8_t* b, int cols, int first, int last) {
+  static const AlbedoKernel kernel;
+  // The window: the half-maximum extent widened by its own width each side (the line's part on a dark
+  // cell lies below the difference's half maximum, often below its centre-of-mass level).
+  const int width = last - first + 1;
+  const int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
+  const int n = hi - lo + 1;
+  if (n > kAlbedoMaxWindow) return -1.0;
+  double ratio[kAlbedoMaxWindow];
+  int high = 0;
+  for (int i = lo; i <= hi; ++i) high = std::max(high, int{b[i]});
+  const double floor_dn = std::max(3.0, 0.05 * high);
+  for (int i = lo; i <= hi; ++i) {
+    double sw = 0, sv = 0;
+    for (int k = std::max(0, i - kAlbedoRadius); k <= std::min(cols - 1, i + kAlbedoRadius); ++k) {
+      const double w = kernel.w[k - i + kAlbedoRadius];
+      sw += w;
+      sv += w * b[k];
+    }
+    ratio[i - lo] = d[i] / std::max(sv / sw, floor_dn);
+  }
+  // The centre of mass of the ratio, as kCenterOfMass's (level 0.15 of its peak), from the ratio's
+  // highest value within the extent widened by half its width each side.
+  int peak = std::max(0, first - lo - width / 2);
+  const int search_end = std::min(n - 1, last - lo + width / 2);
+  for (int i = peak + 1; i <= search_end; ++i)
+    if (ratio[i] > ratio[peak]) peak = i;
+  const double level = kComLevelNum * ratio[peak] / kComScale;
+  int f = peak, l = peak;
+  while (f > 0 && ratio[f - 1] > level) --f;
+  while (l < n - 1 && ratio[l + 1] > level) ++l;
+  double sum = 0, moment = 0;
+  for (int i = f; i <= l; ++i) {
+    sum += ratio[i] - level;
+    moment += (ratio[i] - level) * i;
+  }
+  if (!(sum > 0)) return -1.0;
+  return lo + moment / sum;
+}
+
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
                   const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column_out) {
   double column;
@@ -76,6 +157,20 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
     column = EstimateCentre(o.estimator, d, cols, c.first, c.last, c.peak);
   }
   if (column < 0) return false;
+  bool albedo_edge = false;
+  if (o.estimator == Estimator::kCenterOfMass && AlbedoEdgeInside(b, std::max(0, c.com_first - kAlbedoMinLevelPx),
+                                                                 std::min(cols - 1, c.com_last + kAlbedoMinLevelPx))) {
+    // The albedo changes inside the line (texture, a dark-and-white edge): the reflection is the laser's
+    // profile times the albedo, which pulls the centre of mass towards the brighter side by up to a
+    // quarter of the width. The centre of the profile divided by the albedo as the laser-off frame
+    // shows it, taken through the same optics (design notes, "Albedo inside the line").
+    const double normalised = AlbedoNormalisedCentre(d, b, cols, c.first, c.last);
+    if (normalised >= 0) {
+      column = normalised;
+      albedo_edge = true;
+      flags |= kFlagAlbedoEdge;
+    }
+  }
   if (a[c.peak_pos] == 255) {
     flags |= kFlagSaturated;
     // A notch: a saturated pixel of the line whose own difference is below half the line's best.
@@ -84,10 +179,14 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   }
   if (c.first == 0 || c.last == cols - 1) flags |= kFlagClipped;
   terms->column = column;
-  terms->extent_middle = 0.5 * (c.first + c.last);
+  // The asymmetry term compares the centre with the difference's extent, which an albedo edge makes
+  // lopsided on purpose: for such points the texture term stands for it.
+  terms->extent_middle = albedo_edge ? column : 0.5 * (c.first + c.last);
   terms->width_num = c.width_num;
   terms->width_den = c.width_den;
   terms->peak = c.peak;
+  terms->overexposed = (flags & kFlagSaturated) != 0 && o.estimator == Estimator::kCenterOfMass &&
+                       c.com_last - c.com_first + 1 < kGlintFootRatio * (c.last - c.first + 1);
   // Texture across the line (ScorePoints): the laser-off row either side of the centre's pixel.
   const int middle = static_cast<int>(column + 0.5);
   const SidesSum sides = SumsAround(b, c.com_first, middle, c.com_last, cols);
@@ -152,6 +251,71 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
     p[i].uncertainty_px = static_cast<float>(uncertainty) * std::sqrt(grow);
     if (std::abs(asymmetry) > 0.25 * width) p[i].flags = flags | kFlagLopsided;
   }
+}
+
+void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& points = *line_points;
+  const size_t n = points.size();
+  size_t start = 0;
+  while (start < n) {
+    // The stretch [start, end): rows at most 2 apart (as the row loop's continuity), no jump over
+    // max_jump_px per row.
+    size_t end = start + 1;
+    while (end < n) {
+      const int gap = points[end].row - points[end - 1].row;
+      if (gap > 2 || std::abs(points[end].column - points[end - 1].column) > max_jump_px * gap) break;
+      ++end;
+    }
+    // An end at the image's first or last rows is the frame's edge, not the line's.
+    const bool open_top = points[start].row > 1;
+    const bool open_bottom = points[end - 1].row < rows - 2;
+    for (size_t i = start; i < end; ++i) {
+      size_t from_end = static_cast<size_t>(kLineEndRows);
+      if (open_top) from_end = std::min(from_end, i - start);
+      if (open_bottom) from_end = std::min(from_end, end - 1 - i);
+      if (from_end < static_cast<size_t>(kLineEndRows))
+        points[i].quality *= static_cast<float>(from_end + 1) / static_cast<float>(kLineEndRows + 1);
+    }
+    start = end;
+  }
+}
+
+int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& points = *line_points;
+  const size_t n = points.size();
+  if (n == 0) return 0;
+  // Prefix counts over the frame's rows of the points and of the overexposed ones.
+  thread_local std::vector<int> all, over;
+  all.assign(static_cast<size_t>(rows) + 1, 0);
+  over.assign(static_cast<size_t>(rows) + 1, 0);
+  bool any = false;
+  for (size_t i = 0; i < n; ++i) {
+    all[static_cast<size_t>(points[i].row) + 1] = 1;
+    over[static_cast<size_t>(points[i].row) + 1] = terms[i].overexposed ? 1 : 0;
+    any = any || terms[i].overexposed;
+  }
+  if (!any) return 0;
+  for (int r = 0; r < rows; ++r) {
+    all[static_cast<size_t>(r) + 1] += all[static_cast<size_t>(r)];
+    over[static_cast<size_t>(r) + 1] += over[static_cast<size_t>(r)];
+  }
+  auto count = [&](const std::vector<int>& v, int row, int half) {
+    const int lo = std::max(0, row - half), hi = std::min(rows - 1, row + half);
+    return v[static_cast<size_t>(hi) + 1] - v[static_cast<size_t>(lo)];
+  };
+  int flagged = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (!terms[i].overexposed) continue;
+    const int row = points[i].row;
+    if (count(over, row, kGlintHalfRows) < kGlintShare * (2 * kGlintHalfRows + 1)) continue;
+    if (count(over, row, kGlintReachRows) > kGlintMaxShare * count(all, row, kGlintReachRows)) continue;
+    LinePoint& p = points[i];
+    p.flags |= kFlagGlint;
+    p.quality *= static_cast<float>(kGlintQuality);
+    p.uncertainty_px = static_cast<float>(std::hypot(p.uncertainty_px, kGlintUncertaintyPx));
+    ++flagged;
+  }
+  return flagged;
 }
 
 }  // namespace detail

@@ -50,6 +50,11 @@ enum LinePointFlag : uint8_t {
                            // background under a saturated line): counted as laser (extract.cc)
   kFlagStrongerRejected = 16,  // a much stronger candidate in the row was rejected as too narrow (a hot
                                // pixel or a glint's core): this weaker, plausible one was kept
+  kFlagAlbedoEdge = 32,  // the albedo changes inside the line (the laser-off frame shows an edge): the
+                         // centre is that of the difference divided by the albedo (extract.cc)
+  kFlagGlint = 64,  // a glint of the laser on a glossy surface: a compact stretch of rows where the line is
+                    // overexposed far more than above and below it (extract.cc, "Glints"); its centre
+                    // may be pulled by the glint's lobe, so its quality is lower and its uncertainty larger
 };
 
 struct LinePoint {
@@ -71,6 +76,7 @@ struct LineStats {
   int bad_width = 0;        // every candidate too narrow (glint, hot pixel) or too wide (ambient blob)
   int off_saturated = 0;    // the laser-off frame is saturated under the peak: a specular highlight
   int multiple_peaks = 0;   // rows flagged kFlagMultiplePeaks (also counted in found)
+  int glints = 0;           // points flagged kFlagGlint (also counted in found)
   int stronger_rejected = 0;  // rows without a point because a much stronger candidate was rejected
                               // (too wide, or hidden by a saturated laser-off frame): see extract.cc
   double noise_dn = 0;      // background noise of the difference used for the threshold, DN (sigma)
