@@ -20,6 +20,7 @@ struct CalibrateRigOptions {
   std::vector<std::string> bundles;
   std::string out = "calib.yaml";
   std::string report;
+  std::string table_slip = "independent";  // the table angles' prior: each position, or each move
 };
 
 int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) {
@@ -32,7 +33,12 @@ int RunCalibrateRig(const CalibrateRigOptions& options, const Context& context) 
   const std::vector<std::filesystem::path> bundles(options.bundles.begin(), options.bundles.end());
   const Status paths = CheckOutputPaths(outputs, bundles);
   if (!paths.ok()) return ReportStatus(context, command, paths);
-  Result<pipeline::BundleCalibration> result = pipeline::CalibrateFromBundles(bundles, {}, context.progress);
+  pipeline::CalibrateOptions calibrate_options;
+  if (options.table_slip == "cumulative") {
+    calibrate_options.calibration.table_angle_prior = calib::RigCalibrationOptions::TableAnglePrior::kIncrements;
+  }
+  Result<pipeline::BundleCalibration> result =
+      pipeline::CalibrateFromBundles(bundles, calibrate_options, context.progress);
   if (!result.ok()) return ReportStatus(context, command, result.status());
   const Status written = pipeline::WriteBundleCalibration(*result, options.out, options.report);
   if (!written.ok()) return ReportStatus(context, command, written);
@@ -121,6 +127,11 @@ void RegisterCalibrate(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("bundles", rig_options->bundles, "calibration bundle directories");
   sub->add_option("--out", rig_options->out, "output calibration (calib.yaml)")->capture_default_str();
   sub->add_option("--report", rig_options->report, "calibration report (JSON)");
+  sub->add_option("--table-slip", rig_options->table_slip,
+                  "how the table slips: independent (each position's angle has the commanded one as its prior) "
+                  "or cumulative (lost steps add up: the prior is on each move between positions)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"independent", "cumulative"}));
   sub->callback([rig_options, &context, exit_code, sub] {
     if (sub->got_subcommand("camera")) return;
     *exit_code = RunCalibrateRig(*rig_options, context);

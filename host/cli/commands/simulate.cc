@@ -1,6 +1,7 @@
 // rotoscan simulate: Render scan or calibration bundles on the virtual scanner (with ground truth).
 //   rotoscan simulate SCENE.json --out DIR [--kind scan|calib-object|checkerboard|table-checkerboard]
 //                    [--steps N] [--threads N] [--overwrite | --resume] [--no-truth] [--table-slip DEG]
+//                    [--table-slip-mode independent|cumulative]
 //                    [--placement N] [--step-deg DEG]
 #include <memory>
 #include <ostream>
@@ -22,6 +23,7 @@ struct SimulateCommandOptions {
   bool resume = false;
   bool no_truth = false;
   double table_slip_deg = 0.0;
+  std::string table_slip_mode = "independent";
   int placement = 0;
   double step_deg = 0.0;
 };
@@ -31,6 +33,8 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   if (!kind.ok()) return ReportStatus(context, "simulate", kind.status());
   const Status paths = CheckOutputPaths({{options.out, "--out", OutputKind::kDirectory}}, {options.scene});
   if (!paths.ok()) return ReportStatus(context, "simulate", paths);
+  auto slip_mode = sim::ParseSlipMode(options.table_slip_mode);
+  if (!slip_mode.ok()) return ReportStatus(context, "simulate", slip_mode.status());
   auto scene = sim::LoadScene(options.scene);
   if (!scene.ok()) return ReportStatus(context, "simulate", scene.status());
   sim::SimulateOptions sim_options;
@@ -42,6 +46,7 @@ int RunSimulate(const SimulateCommandOptions& options, const Context& context) {
   sim_options.resume = options.resume;
   sim_options.truth = !options.no_truth;
   sim_options.table_slip_deg = options.table_slip_deg;
+  sim_options.table_slip_mode = *slip_mode;
   sim_options.placement = options.placement;
   sim_options.step_deg = options.step_deg;
   const Status status = sim::Simulate(*scene, sim_options, context.progress);
@@ -75,6 +80,11 @@ void RegisterSimulate(CLI::App& app, const Context& context, int* exit_code) {
                   "a table that slips: each true angle off the commanded one by up to this many degrees "
                   "(uniform; bundle.json keeps the commanded angle, truth/table_angles.csv the true one)")
       ->check(CLI::Range(0.0, 45.0));
+  sub->add_option("--table-slip-mode", options->table_slip_mode,
+                  "independent: each position off on its own; cumulative: the deviations add up from position "
+                  "to position (a table that loses steps drifts and does not come back)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"independent", "cumulative"}));
   sub->add_option("--placement", options->placement,
                   "scans: the object's placement on the table (the scene's 'placements', e.g. 1 = on its "
                   "side); recorded in the bundle, its true pose in truth/placement.csv")

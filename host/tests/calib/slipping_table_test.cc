@@ -220,5 +220,96 @@ TEST(SlippingTableTest, RefinedTableAnglesRecoverTheSlipAndTheReportJudgesTheSca
   EXPECT_GT(ef.axis_mm + ef.offset_mm[0] + ef.offset_mm[1], er.axis_mm + er.offset_mm[0] + er.offset_mm[1]);
 }
 
+// A table whose lost steps accumulate (`simulate --table-slip-mode cumulative`: each move off by up to
+// 0.5 degree, the true angle drifting from the commanded one without coming back), JPEG frames, calibrated
+// with the prior on each move (TableAnglePrior::kIncrements). By default a short set (3 placements x 7
+// angles over 120 degrees, ~20 s); ROTOSCAN_CALIB_RENDERED=1 renders 16 angles per placement.
+TEST(SlippingTableTest, CumulativeSlipRefinedWithAPriorOnEachMove) {
+  const bool full = std::getenv("ROTOSCAN_CALIB_RENDERED") != nullptr;
+  const int steps = full ? kSteps : 7;
+  ScratchDir dir;
+  std::vector<std::filesystem::path> bundles;
+  std::vector<std::vector<bundle::TableAngle>> angles;
+  for (const char* name : {"calibration.json", "calibration-2.json", "calibration-3.json"}) {
+    Result<sim::Scene> scene = sim::LoadScene(DataPath(std::string("scenes/") + name));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    sim::SimulateOptions options;
+    options.out = dir / name;
+    options.kind = sim::SimulateKind::kTableCheckerboard;
+    options.steps = steps;
+    options.table_slip_deg = kSlipDeg;
+    options.table_slip_mode = sim::SlipMode::kCumulative;
+    const Status simulated = sim::Simulate(*scene, options, nullptr);
+    ASSERT_TRUE(simulated.ok()) << simulated.ToString();
+    ASSERT_NO_FATAL_FAILURE(JpegRoundTrip(options.out));
+    Result<std::vector<bundle::TableAngle>> truth =
+        bundle::ReadTableAngles(bundle::TruthTableAnglesPath(options.out));
+    ASSERT_TRUE(truth.ok()) << truth.status().ToString();
+    angles.push_back(*truth);
+    bundles.push_back(options.out);
+  }
+  Result<geometry::Rig> truth_rig = geometry::ReadRigYaml(bundle::TruthRigPath(bundles[0]));
+  ASSERT_TRUE(truth_rig.ok()) << truth_rig.status().ToString();
+  Result<calib::CalibrationData> observed = ObservationsFromBundles(bundles, nullptr);
+  ASSERT_TRUE(observed.ok()) << observed.status().ToString();
+  const calib::CalibrationData& data = *observed;
+  // The truth is a drift: consecutive deviations differ by at most one move's slip, and the largest
+  // deviation is beyond it.
+  double largest = 0.0;
+  for (const auto& list : angles) {
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      const double d = list[i].true_rad - list[i].commanded_rad;
+      largest = std::max(largest, std::abs(d));
+      if (i > 0) {
+        const double before = list[i - 1].true_rad - list[i - 1].commanded_rad;
+        EXPECT_LE(std::abs(d - before), geometry::DegToRad(kSlipDeg) + 1e-12);
+      }
+    }
+  }
+  calib::RigCalibrationOptions options;
+  options.table_angle_prior = calib::RigCalibrationOptions::TableAnglePrior::kIncrements;
+  const auto initial = calib::CalibrateThreeStep(data, options);
+  ASSERT_TRUE(initial.ok()) << initial.status().ToString();
+  const auto refined = calib::RefineRig(data, *initial, options);
+  ASSERT_TRUE(refined.ok()) << refined.status().ToString();
+  const Errors e = ErrorsOf(refined->estimate.rig, *truth_rig);
+  Print("cumulative slip, prior on each move", refined->summary, e);
+  // The refined angles against the true ones, each placement's mean removed (its pose takes the mean up).
+  double worst_deg = 0.0;
+  for (int p = 0; p < 3; ++p) {
+    std::vector<double> est, tru;
+    for (const calib::TargetView& view : data.target_views) {
+      if (view.placement != p) continue;
+      const auto it = std::find_if(angles[p].begin(), angles[p].end(),
+                                   [&](const bundle::TableAngle& a) { return a.step == view.step; });
+      ASSERT_NE(it, angles[p].end()) << view.name;
+      est.push_back(refined->estimate.TableAngle(p, view.step, view.table_angle_rad));
+      tru.push_back(it->true_rad);
+    }
+    ASSERT_GE(est.size(), 3u) << "placement " << p;
+    double est_mean = 0.0, tru_mean = 0.0;
+    for (std::size_t i = 0; i < est.size(); ++i) {
+      est_mean += est[i] / static_cast<double>(est.size());
+      tru_mean += tru[i] / static_cast<double>(tru.size());
+    }
+    for (std::size_t i = 0; i < est.size(); ++i) {
+      worst_deg = std::max(worst_deg, geometry::RadToDeg(std::abs((est[i] - est_mean) - (tru[i] - tru_mean))));
+    }
+  }
+  std::printf("%zu views; true drift up to %.3f deg; refined angles vs truth: worst %.4f deg; step scale %+.4f %%\n",
+              data.target_views.size(), geometry::RadToDeg(largest), worst_deg,
+              100.0 * (refined->estimate.rig.step_angle_rad / truth_rig->step_angle_rad - 1.0));
+  EXPECT_GT(geometry::RadToDeg(largest), kSlipDeg);
+  EXPECT_LT(worst_deg, 0.02);
+  EXPECT_LT(e.fx_percent, 0.1);
+  for (int l = 0; l < 2; ++l) {
+    EXPECT_LT(e.normal_deg[l], 0.05) << l;
+    EXPECT_LT(e.offset_mm[l], 0.05) << l;
+  }
+  EXPECT_LT(e.axis_mm, 0.1);
+  EXPECT_LT(e.axis_deg, 0.05);
+  EXPECT_LT(refined->summary.rms_px, options.max_rms_px);
+}
+
 }  // namespace
 }  // namespace rotoscan::pipeline

@@ -666,11 +666,20 @@ Result<RigCalibration> RefineRig(const CalibrationData& data, const RigEstimate&
   if (!options.refine_intrinsics) problem.SetParameterBlockConstant(intrinsics.data());
   if (!options.refine_distortion) problem.SetParameterBlockConstant(distortion.data());
   if (!options.refine_angle_scale) problem.SetParameterBlockConstant(&angle_scale);
+  const double angle_sigma_rad = geometry::DegToRad(options.table_angle_sigma_deg);
+  const bool increments =
+      options.table_angle_prior == RigCalibrationOptions::TableAnglePrior::kIncrements;
+  const std::pair<int, int>* previous = nullptr;  // the last seen position (angle_index is in step order)
   for (const auto& [key, index] : angle_index) {
     if (options.refine_table_angles && target_seen.count(key) != 0) {
-      problem.AddResidualBlock(
-          internal::TableAnglePriorCost::Create(geometry::DegToRad(options.table_angle_sigma_deg)), nullptr,
-          &angle_offsets[index]);
+      if (increments && previous != nullptr && previous->first == key.first) {
+        problem.AddResidualBlock(internal::TableAngleIncrementPriorCost::Create(angle_sigma_rad), nullptr,
+                                 &angle_offsets[angle_index.at(*previous)], &angle_offsets[index]);
+      } else {
+        problem.AddResidualBlock(internal::TableAnglePriorCost::Create(angle_sigma_rad), nullptr,
+                                 &angle_offsets[index]);
+      }
+      previous = &key;
     } else {
       problem.SetParameterBlockConstant(&angle_offsets[index]);
     }

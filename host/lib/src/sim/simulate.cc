@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -25,6 +26,12 @@ Result<SimulateKind> ParseSimulateKind(const std::string& name) {
   if (name == "table-checkerboard") return SimulateKind::kTableCheckerboard;
   return InvalidArgumentError("kind '" + name +
                               "' must be scan, calib-object, checkerboard or table-checkerboard");
+}
+
+Result<SlipMode> ParseSlipMode(const std::string& name) {
+  if (name == "independent") return SlipMode::kIndependent;
+  if (name == "cumulative") return SlipMode::kCumulative;
+  return InvalidArgumentError("table slip mode '" + name + "' must be independent or cumulative");
 }
 
 namespace {
@@ -182,7 +189,17 @@ Status Simulate(const Scene& input_scene, const SimulateOptions& options, Progre
       break;
   }
   const double slip_rad = geometry::DegToRad(options.table_slip_deg);
-  for (Job& job : jobs) job.true_angle = job.angle + TableSlip(scene.seed, job.pose, job.step, slip_rad);
+  if (options.table_slip_mode == SlipMode::kCumulative) {
+    // The deviations add up along each pose's positions, in step order (jobs are in that order).
+    std::map<int, double> drift;  // per pose
+    for (Job& job : jobs) {
+      double& d = drift[job.pose];
+      d += TableSlip(scene.seed, job.pose, job.step, slip_rad);
+      job.true_angle = job.angle + d;
+    }
+  } else {
+    for (Job& job : jobs) job.true_angle = job.angle + TableSlip(scene.seed, job.pose, job.step, slip_rad);
+  }
   header.table_step_rad = scene.rig.step_angle_rad;
   header.placement = options.placement;
   header.camera.name = "virtual " + scene.preset + " " + std::to_string(scene.rig.camera.width) + "x" +

@@ -101,6 +101,12 @@ struct RigCalibrationOptions {
   // standard deviation (see the file comment). Off: the commanded angles (times the scale) are truths.
   bool refine_table_angles = true;
   double table_angle_sigma_deg = 0.5;
+  // What the prior constrains: each position's angle against its commanded one (kAbsolute: a table whose
+  // positions are off each on its own), or each move between consecutive positions where the target is
+  // seen (kIncrements: a table whose lost steps accumulate, `simulate --table-slip-mode cumulative`; the
+  // first position of each placement keeps the absolute prior).
+  enum class TableAnglePrior { kAbsolute, kIncrements };
+  TableAnglePrior table_angle_prior = TableAnglePrior::kAbsolute;
   int max_iterations = 100;
   bool compute_covariance = true;
   // Pass/fail threshold of the report: the predicted error (1 sigma, RMS over the sample points) of a

@@ -23,7 +23,9 @@
 // scene seed and the step, independent of the step count and the thread count), as a real turntable that
 // misses or overshoots steps (issue 15: a real sweep stepped 2.9 or 4.05 degrees for a commanded 3.6).
 // bundle.json keeps the commanded angle; the truth (truth/table_angles.csv, truth/poses.csv, the line
-// truth) is at the true one.
+// truth) is at the true one. With SlipMode::kCumulative the deviations add up instead (a table that loses
+// or gains steps does not find them again): position i of a pose stands at its commanded angle plus the sum
+// of the deviations drawn for positions 0..i, a random walk that drifts away from the commanded angles.
 //
 // Frames are rendered in parallel (std::thread, one step at a time per thread); every frame's noise comes
 // from FrameSeed(scene.seed, pose, step, frame), so the output does not depend on the thread count.
@@ -39,6 +41,12 @@ namespace rotoscan::sim {
 
 enum class SimulateKind { kScan, kCalibrationObject, kCheckerboard, kTableCheckerboard };
 
+// How a slipping table's deviations behave (see the file comment): each position off on its own, or the
+// deviations accumulating from position to position.
+enum class SlipMode { kIndependent, kCumulative };
+// "independent", "cumulative".
+Result<SlipMode> ParseSlipMode(const std::string& name);
+
 // "scan", "calib-object", "checkerboard", "table-checkerboard".
 Result<SimulateKind> ParseSimulateKind(const std::string& name);
 
@@ -51,6 +59,8 @@ struct SimulateOptions {
   bool resume = false;             // continue an interrupted bundle at `out` (same scene and options)
   bool truth = true;               // write truth/
   double table_slip_deg = 0.0;     // >= 0: largest deviation of a true table angle from the commanded one
+                                   // (cumulative: the largest deviation added at one position)
+  SlipMode table_slip_mode = SlipMode::kIndependent;
   // Scans: the object's placement on the table (Scene::placements, PlaceScene); recorded in bundle.json and,
   // with the truth, as truth/placement.csv.
   int placement = 0;

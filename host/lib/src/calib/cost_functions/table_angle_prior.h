@@ -30,4 +30,28 @@ class TableAnglePriorCost {
   double inv_sigma_;
 };
 
+// The same for a table whose slips accumulate (RigCalibrationOptions::TableAnglePrior::kIncrements): a table
+// that loses or gains steps drifts and does not come back, so what is known a priori is each move, not each
+// position. This residual pulls the change of offset between consecutive positions where the target is seen
+// towards 0: (offset_b - offset_a) / sigma_rad (the first position of a placement keeps the absolute prior,
+// which fixes the gauge).
+class TableAngleIncrementPriorCost {
+ public:
+  explicit TableAngleIncrementPriorCost(double sigma_rad) : inv_sigma_(1.0 / sigma_rad) {}
+
+  template <typename T>
+  bool operator()(const T* offset_a, const T* offset_b, T* residual) const {
+    residual[0] = (offset_b[0] - offset_a[0]) * T(inv_sigma_);
+    return true;
+  }
+
+  static ceres::CostFunction* Create(double sigma_rad) {
+    return new ceres::AutoDiffCostFunction<TableAngleIncrementPriorCost, 1, 1, 1>(
+        new TableAngleIncrementPriorCost(sigma_rad));
+  }
+
+ private:
+  double inv_sigma_;
+};
+
 }  // namespace rotoscan::calib::internal
