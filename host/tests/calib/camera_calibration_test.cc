@@ -6,6 +6,7 @@
 #include <opencv2/core/persistence.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "rotoscan/core/file.h"
 #include "testing/testing.h"
 
 namespace rotoscan::calib {
@@ -51,6 +52,30 @@ TEST(CameraCalibrationTest, MatchesPublishedOpenCvLeftIntrinsics) {
   cv::Mat k_back;
   back["K"] >> k_back;
   EXPECT_DOUBLE_EQ(k_back.at<double>(0, 0), camera.fx);
+  // camera.yaml's own reader gives the model back.
+  const Result<geometry::CameraModel> read = ReadCameraYaml(dir / "camera.yaml");
+  ASSERT_TRUE(read.ok()) << read.status().ToString();
+  EXPECT_EQ(read->width, 640);
+  EXPECT_DOUBLE_EQ(read->fx, camera.fx);
+  EXPECT_DOUBLE_EQ(read->cy, camera.cy);
+  EXPECT_EQ(read->distortion, camera.distortion);
+}
+
+// The 31 bytes that made OpenCV 4.6's YAML parser loop forever (geometry/yaml.h): camera.yaml's reader
+// refuses them at once, from text and from a file, as calib.yaml's does; a missing file is kNotFound.
+TEST(CameraCalibrationTest, CameraYamlReaderRefusesTheBytesThatHangOpenCv) {
+  const std::string hang("%YAML:1.0\n---AML:1.\n-\xec\n\n-\xec\n 21\n", 31);
+  const Result<geometry::CameraModel> text = ParseCameraYaml(hang, "hang.yaml");
+  EXPECT_EQ(text.status().code(), StatusCode::kCorruptData) << text.status().ToString();
+  ScratchDir dir;
+  ASSERT_TRUE(WriteFileAtomically(dir / "camera.yaml", hang).ok());
+  const Result<geometry::CameraModel> file = ReadCameraYaml(dir / "camera.yaml");
+  EXPECT_EQ(file.status().code(), StatusCode::kCorruptData) << file.status().ToString();
+  EXPECT_NE(file.status().message().find("camera.yaml"), std::string::npos);
+  EXPECT_EQ(ReadCameraYaml(dir / "none.yaml").status().code(), StatusCode::kNotFound);
+  // Keys missing: a clear error naming them.
+  const Result<geometry::CameraModel> empty = ParseCameraYaml("%YAML:1.0\nrms_px: 0.3\n", "empty.yaml");
+  EXPECT_EQ(empty.status().code(), StatusCode::kInvalidArgument) << empty.status().ToString();
 }
 
 TEST(CameraCalibrationTest, ParsesPattern) {

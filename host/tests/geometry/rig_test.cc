@@ -6,6 +6,7 @@
 
 #include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rigid.h"
+#include "rotoscan/geometry/yaml.h"
 #include "testing/testing.h"
 
 namespace rotoscan::geometry {
@@ -98,6 +99,33 @@ TEST(RigTest, MalformedUtf8ThatHangsOpenCvsParserIsCorruptData) {
   ScratchDir dir;
   ASSERT_TRUE(WriteRigYaml(dir / "calib.yaml", ExampleRig()).ok());
   EXPECT_TRUE(ReadRigYaml(dir / "calib.yaml").ok());
+}
+
+// The same 31 bytes through every YAML reader, which all go through geometry/yaml.h: the shared reader
+// itself, calib.yaml from text and from a file (truth/rig.yaml is read the same way); camera.yaml:
+// calib/camera_calibration_test.cc.
+TEST(RigTest, EveryYamlReaderRefusesTheBytesThatHangOpenCv) {
+  const std::string hang("%YAML:1.0\n---AML:1.\n-\xec\n\n-\xec\n 21\n", 31);
+  bool called = false;
+  const Status shared = ReadYamlText(hang, "hang.yaml", [&](const cv::FileNode&) {
+    called = true;
+    return Status::Ok();
+  });
+  EXPECT_EQ(shared.code(), StatusCode::kCorruptData) << shared.ToString();
+  EXPECT_FALSE(called);  // the parser never saw it
+  EXPECT_EQ(InvalidYamlByteAt(hang), 21u);
+  EXPECT_EQ(InvalidYamlByteAt("a: 1\nb: \xc3\xa9\n"), std::string::npos);  // UTF-8 is fine
+  ScratchDir dir;
+  ASSERT_TRUE(WriteFileAtomically(dir / "calib.yaml", hang).ok());
+  const Result<Rig> rig = ReadRigYaml(dir / "calib.yaml");
+  EXPECT_EQ(rig.status().code(), StatusCode::kCorruptData) << rig.status().ToString();
+  EXPECT_NE(rig.status().message().find("calib.yaml"), std::string::npos);
+  // An exception inside a reader's own code is an error too, not an escape.
+  const Status thrown = ReadYamlText("%YAML:1.0\na: 1\n", "t.yaml", [](const cv::FileNode& root) -> Status {
+    (void)root["a"].mat();  // not a matrix: cv::Exception
+    return Status::Ok();
+  });
+  EXPECT_EQ(thrown.code(), StatusCode::kCorruptData) << thrown.ToString();
 }
 
 // Found by the calib.yaml fuzzer: a key mangled to ":dt:" makes OpenCV's YAML parser throw std::length_error

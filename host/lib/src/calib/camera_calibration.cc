@@ -16,6 +16,8 @@
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/file.h"
 #include "rotoscan/core/logging.h"
+#include "rotoscan/geometry/rig.h"
+#include "rotoscan/geometry/yaml.h"
 
 namespace rotoscan::calib {
 
@@ -166,6 +168,29 @@ Status WriteCameraYaml(const std::filesystem::path& path, const CameraCalibratio
     return IoError("writing " + path.string() + ": " + e.msg);
   }
   return WriteFileAtomically(path, text);
+}
+
+namespace {
+
+Status ReadValidCamera(const cv::FileNode& root, geometry::CameraModel* camera) {
+  ROTOSCAN_ASSIGN_OR_RETURN(*camera, geometry::ReadCameraNodes(root));
+  return camera->Validate();
+}
+
+}  // namespace
+
+Result<geometry::CameraModel> ReadCameraYaml(const std::filesystem::path& path) {
+  geometry::CameraModel camera;
+  ROTOSCAN_RETURN_IF_ERROR(geometry::ReadYamlFile(
+      path, "camera file", [&](const cv::FileNode& root) { return ReadValidCamera(root, &camera); }));
+  return camera;
+}
+
+Result<geometry::CameraModel> ParseCameraYaml(const std::string& text, const std::string& name) {
+  geometry::CameraModel camera;
+  ROTOSCAN_RETURN_IF_ERROR(
+      geometry::ReadYamlText(text, name, [&](const cv::FileNode& root) { return ReadValidCamera(root, &camera); }));
+  return camera;
 }
 
 }  // namespace rotoscan::calib

@@ -7,6 +7,7 @@
 
 #include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rigid.h"
+#include "rotoscan/geometry/yaml.h"
 
 namespace rotoscan::geometry {
 
@@ -121,20 +122,26 @@ void WriteRigNodes(cv::FileStorage& storage, const Rig& rig) {
   storage << "step_angle_deg" << RadToDeg(rig.step_angle_rad);
 }
 
-Result<Rig> ReadRigNodes(const cv::FileNode& root) {
-  Rig rig;
+Result<CameraModel> ReadCameraNodes(const cv::FileNode& root) {
+  CameraModel camera;
   if (root["image_width"].empty() || root["image_height"].empty()) {
     return InvalidArgumentError("missing key 'image_width' or 'image_height'");
   }
-  rig.camera.width = static_cast<int>(root["image_width"]);
-  rig.camera.height = static_cast<int>(root["image_height"]);
+  camera.width = static_cast<int>(root["image_width"]);
+  camera.height = static_cast<int>(root["image_height"]);
   ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat k, ReadVector(root, "K", 9));
-  rig.camera.fx = k.at<double>(0);
-  rig.camera.cx = k.at<double>(2);
-  rig.camera.fy = k.at<double>(4);
-  rig.camera.cy = k.at<double>(5);
+  camera.fx = k.at<double>(0);
+  camera.cx = k.at<double>(2);
+  camera.fy = k.at<double>(4);
+  camera.cy = k.at<double>(5);
   ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat dist, ReadVector(root, "distortion", 5));
-  for (int i = 0; i < 5; ++i) rig.camera.distortion[i] = dist.at<double>(i);
+  for (int i = 0; i < 5; ++i) camera.distortion[i] = dist.at<double>(i);
+  return camera;
+}
+
+Result<Rig> ReadRigNodes(const cv::FileNode& root) {
+  Rig rig;
+  ROTOSCAN_ASSIGN_OR_RETURN(rig.camera, ReadCameraNodes(root));
   for (int i = 0; i < 2; ++i) {
     ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat plane,
                               ReadVector(root, i == 0 ? "laser_left_plane" : "laser_right_plane", 4));
@@ -169,57 +176,22 @@ Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig) {
   return WriteFileAtomically(path, text);
 }
 
-namespace {
-
-// Where `text` is not well-formed UTF-8 (YAML must be), or npos. OpenCV 4.6's YAML parser loops forever on
-// some malformed bytes (the calib.yaml fuzzer's finding: "- \xEC" items), so they never reach it.
-std::size_t InvalidUtf8At(const std::string& text) {
-  std::size_t i = 0;
-  while (i < text.size()) {
-    const auto c = static_cast<unsigned char>(text[i]);
-    const std::size_t length = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
-    if (length == 0 || c == 0xC0 || c == 0xC1 || c > 0xF4 || i + length > text.size()) return i;
-    for (std::size_t k = 1; k < length; ++k) {
-      if ((static_cast<unsigned char>(text[i + k]) & 0xC0) != 0x80) return i;
-    }
-    if (c < 0x80 && c < 0x20 && c != '\n' && c != '\r' && c != '\t') return i;  // control bytes
-    i += length;
-  }
-  return std::string::npos;
-}
-
-}  // namespace
-
 Result<Rig> ParseRigYaml(const std::string& text, const std::string& name) {
-  if (const std::size_t at = InvalidUtf8At(text); at != std::string::npos) {
-    return CorruptDataError(name + " is not a YAML text: byte " + std::to_string(at) +
-                            " is a control character or not UTF-8");
-  }
-  try {
-    cv::FileStorage storage(text, cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_YAML);
-    if (!storage.isOpened()) return CorruptDataError(name + " is not an OpenCV YAML file");
-    Result<Rig> rig = ReadRigNodes(storage.root());
-    if (!rig.ok()) return rig.status().WithContext(name);
-    return rig;
-  } catch (const cv::Exception& e) {
-    return CorruptDataError(name + ": " + e.msg);
-  } catch (const std::exception& e) {
-    // OpenCV's YAML parser also lets standard exceptions out (std::length_error on a mangled key: found by
-    // the calib.yaml fuzzer).
-    return CorruptDataError(name + " is not a readable OpenCV YAML file (" + e.what() + ")");
-  }
+  Rig rig;
+  ROTOSCAN_RETURN_IF_ERROR(ReadYamlText(text, name, [&](const cv::FileNode& root) -> Status {
+    ROTOSCAN_ASSIGN_OR_RETURN(rig, ReadRigNodes(root));
+    return Status::Ok();
+  }));
+  return rig;
 }
 
 Result<Rig> ReadRigYaml(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) {
-    if (std::filesystem::exists(path, ec)) {
-      return InvalidArgumentError("calibration file " + path.string() + " is not a regular file");
-    }
-    return NotFoundError("calibration file " + path.string() + " does not exist");
-  }
-  ROTOSCAN_ASSIGN_OR_RETURN(const std::string text, ReadFile(path, std::size_t{64} << 20));
-  return ParseRigYaml(text, path.string());
+  Rig rig;
+  ROTOSCAN_RETURN_IF_ERROR(ReadYamlFile(path, "calibration file", [&](const cv::FileNode& root) -> Status {
+    ROTOSCAN_ASSIGN_OR_RETURN(rig, ReadRigNodes(root));
+    return Status::Ok();
+  }));
+  return rig;
 }
 
 }  // namespace rotoscan::geometry

@@ -75,5 +75,10 @@ Result<CameraCalibration> CalibrateCameraFromDirectory(const std::filesystem::pa
 // camera.yaml (OpenCV FileStorage YAML, atomic): image_width, image_height, K, distortion (the calib.yaml
 // keys of geometry/rig.h), then rms_px, per_view_rms_px, views, intrinsics_std, distortion_std.
 Status WriteCameraYaml(const std::filesystem::path& path, const CameraCalibration& calibration);
+// Its camera model back (image_width, image_height, K, distortion; the other keys are information), through
+// geometry/yaml.h's one YAML reader: kNotFound, kCorruptData or kInvalidArgument, never an exception or a
+// hang. ParseCameraYaml: the same from text (`name` for messages).
+Result<geometry::CameraModel> ReadCameraYaml(const std::filesystem::path& path);
+Result<geometry::CameraModel> ParseCameraYaml(const std::string& text, const std::string& name);
 
 }  // namespace rotoscan::calib

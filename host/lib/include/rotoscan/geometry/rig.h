@@ -53,10 +53,13 @@ struct Rig {
 // calibration adds its report (WriteRigNodes into its own FileStorage, then its own keys).
 Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig);  // atomic
 Result<Rig> ReadRigYaml(const std::filesystem::path& path);
-// The same from YAML text (`name` for messages): kCorruptData or kInvalidArgument, never an exception.
+// The same from YAML text (`name` for messages): kCorruptData or kInvalidArgument, never an exception
+// or a hang (both through geometry/yaml.h, the one YAML reader).
 Result<Rig> ParseRigYaml(const std::string& text, const std::string& name);
 // The rig's keys (above) into an open FileStorage, and back from its root node.
 void WriteRigNodes(cv::FileStorage& storage, const Rig& rig);
 Result<Rig> ReadRigNodes(const cv::FileNode& root);
+// The camera's keys alone (image_width, image_height, K, distortion: also camera.yaml's).
+Result<CameraModel> ReadCameraNodes(const cv::FileNode& root);
 
 }  // namespace rotoscan::geometry
