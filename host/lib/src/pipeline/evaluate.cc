@@ -7,8 +7,8 @@
 //   straight at a triangle gives t_hit = inf), so visibility would be "everything".
 // - Visibility is tested view by view only for samples not yet found visible, so the cost is about
 //   (samples) + (never visible samples) x (views) rays.
-// - Coverage looks up cloud points in a uniform grid of cell = radius (27 cells per sample), built once
-//   over the points sorted by cell.
+// - Coverage looks up cloud points in a uniform grid of cell = radius (27 cells per sample: the cloud
+//   module's CellIndex), built once over the points sorted by cell.
 #include "rotoscan/pipeline/evaluate.h"
 
 #include <algorithm>
@@ -30,6 +30,7 @@
 
 #include "rotoscan/core/check.h"
 #include "rotoscan/geometry/rig.h"
+#include "cloud/cell_index.h"
 #include "rotoscan/sim/scene.h"
 #include "sim/mesh.h"
 
@@ -255,82 +256,43 @@ Status MarkVisible(const Occluder& occluder, const EvaluationViews& views, const
   return Status::Ok();
 }
 
-// Cloud points by grid cell of size `cell`.
+// Cloud points by grid cell of size `cell` (cloud/cell_index.h).
 class PointGrid {
  public:
-  PointGrid(const cloud::PointCloud& cloud, double cell) : cloud_(cloud), inv_cell_(1.0 / cell) {
-    order_.resize(cloud.size());
-    std::iota(order_.begin(), order_.end(), uint32_t{0});
-    std::vector<uint64_t> keys(cloud.size());
-    for (size_t i = 0; i < cloud.size(); ++i) keys[i] = Key(Cell(cloud.points[i].position_in_table));
-    std::sort(order_.begin(), order_.end(), [&](uint32_t a, uint32_t b) { return keys[a] < keys[b]; });
-    for (size_t i = 0; i < order_.size();) {
-      size_t j = i;
-      while (j < order_.size() && keys[order_[j]] == keys[order_[i]]) ++j;
-      ranges_.emplace(keys[order_[i]], std::make_pair(i, j));
-      i = j;
-    }
-  }
+  PointGrid(const cloud::PointCloud& cloud, double cell) : cloud_(cloud), index_(cloud, AllPoints(cloud), cell) {}
 
   // The distance from p to the nearest point within one cell for which `other(point)` holds (inf: none).
   template <typename Other>
   float NearestWhere(const Eigen::Vector3f& p, Other other) const {
-    const Eigen::Vector3i c = Cell(p);
     float best = std::numeric_limits<float>::infinity();
-    for (int dx = -1; dx <= 1; ++dx) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dz = -1; dz <= 1; ++dz) {
-          auto it = ranges_.find(Key(c + Eigen::Vector3i(dx, dy, dz)));
-          if (it == ranges_.end()) continue;
-          for (size_t k = it->second.first; k < it->second.second; ++k) {
-            const cloud::CloudPoint& q = cloud_.points[order_[k]];
-            if (!other(q)) continue;
-            best = std::min(best, (q.position_in_table - p).squaredNorm());
-          }
-        }
-      }
-    }
+    index_.ForEachNear(p, [&](uint32_t i) {
+      const cloud::CloudPoint& q = cloud_.points[i];
+      if (other(q)) best = std::min(best, (q.position_in_table - p).squaredNorm());
+    });
     return std::sqrt(best);
   }
 
   // Bit 0: a left-laser point within `radius` of p; bit 1: a right-laser point; bit 2: any point.
   int Near(const Eigen::Vector3f& p, double radius) const {
-    const Eigen::Vector3i c = Cell(p);
     const float r2 = static_cast<float>(radius * radius);
     int found = 0;
-    for (int dx = -1; dx <= 1; ++dx) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dz = -1; dz <= 1; ++dz) {
-          auto it = ranges_.find(Key(c + Eigen::Vector3i(dx, dy, dz)));
-          if (it == ranges_.end()) continue;
-          for (size_t k = it->second.first; k < it->second.second; ++k) {
-            const cloud::CloudPoint& q = cloud_.points[order_[k]];
-            if ((q.position_in_table - p).squaredNorm() > r2) continue;
-            found |= 4 | (q.laser == 0 ? 1 : q.laser == 1 ? 2 : 0);
-            if (found == 7) return found;
-          }
-        }
-      }
-    }
+    index_.ForEachNear(p, [&](uint32_t i) {
+      const cloud::CloudPoint& q = cloud_.points[i];
+      if ((q.position_in_table - p).squaredNorm() <= r2) found |= 4 | (q.laser == 0 ? 1 : q.laser == 1 ? 2 : 0);
+      return found != 7;
+    });
     return found;
   }
 
  private:
-  Eigen::Vector3i Cell(const Eigen::Vector3f& p) const {
-    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() * inv_cell_)),
-                           static_cast<int>(std::floor(p.y() * inv_cell_)),
-                           static_cast<int>(std::floor(p.z() * inv_cell_)));
-  }
-  static uint64_t Key(const Eigen::Vector3i& c) {
-    // 21 bits per axis (cells of >= 0.05 mm over ±50 m).
-    auto part = [](int v) { return static_cast<uint64_t>(v + (1 << 20)) & ((uint64_t{1} << 21) - 1); };
-    return part(c.x()) | (part(c.y()) << 21) | (part(c.z()) << 42);
+  static std::vector<uint32_t> AllPoints(const cloud::PointCloud& cloud) {
+    std::vector<uint32_t> all(cloud.size());
+    std::iota(all.begin(), all.end(), uint32_t{0});
+    return all;
   }
 
   const cloud::PointCloud& cloud_;
-  double inv_cell_;
-  std::vector<uint32_t> order_;
-  std::unordered_map<uint64_t, std::pair<size_t, size_t>> ranges_;
+  cloud::internal::CellIndex index_;
 };
 
 Eigen::Vector3f InterpolatedColor(const bundle::TruthMesh& mesh, const Closest& c) {
