@@ -57,7 +57,8 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
     return kExitUsage;
   }
   if (reach && o.scene.empty()) {
-    *context.err << "rotoscan evaluate: --reach and --uncovered need --scene (the rig's lasers and the placements)\n";
+    *context.err
+        << "rotoscan evaluate: --reach and --uncovered need --scene (the rig's lasers and the placements)\n";
     return kExitUsage;
   }
   if (!o.uncovered.empty()) {
@@ -104,7 +105,8 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
   if (reach) {
     auto rig = pipeline::LoadScanRig(o.truth, o.scene);
     if (!rig.ok()) return fail(rig.status());
-    auto where = pipeline::EvaluateReach(*cloud, *truth, *views, *rig, o.evaluate, o.reach_options, context.progress);
+    auto where =
+        pipeline::EvaluateReach(*cloud, *truth, *views, *rig, o.evaluate, o.reach_options, context.progress);
     if (!where.ok()) return fail(where.status());
     *context.out << pipeline::ReachSummary(*where);
     if (!o.uncovered.empty()) {
@@ -122,8 +124,9 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
       }
       Status written = cloud::WritePly(o.uncovered, lost);
       if (!written.ok()) return fail(written);
-      *context.out << "uncovered: " << lost.size() << " samples written to " << o.uncovered
-                   << " (yellow: scannable in the cloud's placements, blue: only in another pose, red: in none)\n";
+      *context.out
+          << "uncovered: " << lost.size() << " samples written to " << o.uncovered
+          << " (yellow: scannable in the cloud's placements, blue: only in another pose, red: in none)\n";
     }
   }
   if (is_mesh) {
@@ -154,16 +157,18 @@ void RegisterEvaluate(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--spacing", o.evaluate.sample_spacing_mm, "surface sample spacing for coverage, mm")
       ->capture_default_str();
   sub->add_option("--threads", o.evaluate.threads, "worker threads (0: all cores)");
-  sub->add_flag("--reach", o.reach,
-                "split the whole surface's coverage by what the rig can scan in the cloud's placements and in any "
-                "pose, with the uncovered regions and the best second pose (needs --scene; a cloud, not a mesh)");
+  sub->add_flag(
+      "--reach", o.reach,
+      "split the whole surface's coverage by what the rig can scan in the cloud's placements and in any "
+      "pose, with the uncovered regions and the best second pose (needs --scene; a cloud, not a mesh)");
   sub->add_option("--uncovered", o.uncovered,
                   "write the uncovered true-surface samples to this PLY, colored by reach (implies --reach)");
   sub->add_option("--reach-poses", o.reach_options.orientations,
                   "object orientations (up directions) tried for the best poses")
       ->capture_default_str();
-  sub->add_option("--reach-incidence", o.reach_options.max_incidence_deg,
-                  "largest incidence (degrees from the normal) at which the camera sees and a laser lights a point")
+  sub->add_option(
+         "--reach-incidence", o.reach_options.max_incidence_deg,
+         "largest incidence (degrees from the normal) at which the camera sees and a laser lights a point")
       ->capture_default_str();
   sub->add_option("--lines", o.lines,
                   "a virtual scanner bundle: line centre error of the extraction against truth/lines");

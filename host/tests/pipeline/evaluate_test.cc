@@ -348,7 +348,8 @@ TEST(EvaluateTest, ReachFindsTheHiddenTopAndThePoseThatScansIt) {
   // the laser meets it at up to 45 degrees from its normal whichever laser it is, so 40 degrees leaves the
   // sides' outer parts out.
   reach.max_incidence_deg = 40;
-  auto strict = EvaluateReach(cloud, TruthSurface{tall, {}, "vertex colors"}, Views(rig, 36), scan_rig, o, reach);
+  auto strict =
+      EvaluateReach(cloud, TruthSurface{tall, {}, "vertex colors"}, Views(rig, 36), scan_rig, o, reach);
   ASSERT_TRUE(strict.ok()) << strict.status().ToString();
   EXPECT_LT(strict->scannable_given, r->scannable_given - 0.05);
   // Bad input.
@@ -444,6 +445,14 @@ TEST(EvaluateCommandTest, ReportsEveryMetricAndWritesJson) {
   EXPECT_FALSE(std::filesystem::exists(report2));
   // Neither a cloud nor --lines: usage.
   EXPECT_EQ(RunCli({"evaluate"}, &out, &err), 2);
+  // --reach and --uncovered need the scene (the lasers' origins, the placements): usage, nothing written.
+  const std::string uncovered = (dir.path() / "uncovered.ply").string();
+  EXPECT_EQ(RunCli({"evaluate", (dir.path() / "cloud.ply").string(), "--truth", (dir.path() / "scan").string(),
+                    "--uncovered", uncovered},
+                   &out, &err),
+            2);
+  EXPECT_NE(err.find("--scene"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(uncovered));
 }
 
 }  // namespace

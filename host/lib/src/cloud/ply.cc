@@ -113,8 +113,8 @@ std::string EncodePly(const PointCloud& cloud) {
     for (size_t k = 0; k < cloud.scan.placements.size() && k < 256; ++k) {
       const ScanGeometry::Placement& p = cloud.scan.placements[k];
       scan << "comment rotoscan placement " << k << " camera_at_step0 " << p.camera_at_step0.x() << " "
-           << p.camera_at_step0.y() << " " << p.camera_at_step0.z() << " step_deg " << p.step_rad * 180.0 / kPi
-           << " merged_from_table";
+           << p.camera_at_step0.y() << " " << p.camera_at_step0.z() << " step_deg "
+           << p.step_rad * 180.0 / kPi << " merged_from_table";
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 4; ++c) scan << " " << p.merged_from_table.matrix()(r, c);
       scan << "\n";
@@ -217,8 +217,9 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
              index == placements.size() && p.camera_at_step0.allFinite() &&
              p.camera_at_step0.cwiseAbs().maxCoeff() < 1e9 && std::isfinite(deg) && std::abs(deg) <= 360.0 &&
              m.allFinite() && m.rightCols<1>().cwiseAbs().maxCoeff() < 1e9 &&
-             (m.leftCols<3>() * m.leftCols<3>().transpose() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() <
-                 1e-6 &&
+             (m.leftCols<3>() * m.leftCols<3>().transpose() - Eigen::Matrix3d::Identity())
+                     .cwiseAbs()
+                     .maxCoeff() < 1e-6 &&
              m.leftCols<3>().determinant() > 0;
         if (ok) {
           p.step_rad = deg * kPi / 180.0;

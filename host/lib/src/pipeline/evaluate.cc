@@ -28,9 +28,9 @@
 #include <open3d/t/geometry/RaycastingScene.h>
 #include <nlohmann/json.hpp>
 
+#include "cloud/cell_index.h"
 #include "rotoscan/core/check.h"
 #include "rotoscan/geometry/rig.h"
-#include "cloud/cell_index.h"
 #include "rotoscan/sim/scene.h"
 #include "sim/mesh.h"
 
@@ -262,7 +262,8 @@ Status MarkVisible(const Occluder& occluder, const EvaluationViews& views, const
 // Cloud points by grid cell of size `cell` (cloud/cell_index.h).
 class PointGrid {
  public:
-  PointGrid(const cloud::PointCloud& cloud, double cell) : cloud_(cloud), index_(cloud, AllPoints(cloud), cell) {}
+  PointGrid(const cloud::PointCloud& cloud, double cell)
+      : cloud_(cloud), index_(cloud, AllPoints(cloud), cell) {}
 
   // The distance from p to the nearest point within one cell for which `other(point)` holds (inf: none).
   template <typename Other>
@@ -287,7 +288,8 @@ class PointGrid {
     int found = 0;
     index_.ForEachNear(p, [&](uint32_t i) {
       const cloud::CloudPoint& q = cloud_.points[i];
-      if ((q.position_in_table - p).squaredNorm() <= r2) found |= 4 | (q.laser == 0 ? 1 : q.laser == 1 ? 2 : 0);
+      if ((q.position_in_table - p).squaredNorm() <= r2)
+        found |= 4 | (q.laser == 0 ? 1 : q.laser == 1 ? 2 : 0);
       return found != 7;
     });
     return found;
@@ -373,8 +375,8 @@ double LineSpacingP95(const cloud::PointCloud& all) {
 }
 
 // The coverage radius: given, or from the scan's own line spacing, or from the table step (evaluate.h).
-void AutomaticRadius(const cloud::PointCloud& cloud, const bundle::TruthMesh& mesh, const EvaluationViews& views,
-                     const EvaluateOptions& options, CoverageStats* cov) {
+void AutomaticRadius(const cloud::PointCloud& cloud, const bundle::TruthMesh& mesh,
+                     const EvaluationViews& views, const EvaluateOptions& options, CoverageStats* cov) {
   cov->radius_mm = options.coverage_radius_mm;
   cov->radius_rule = "given";
   if (cov->radius_mm > 0) return;
@@ -392,7 +394,8 @@ void AutomaticRadius(const cloud::PointCloud& cloud, const bundle::TruthMesh& me
     for (const Eigen::Vector3f& v : mesh.vertices)
       r_max = std::max(r_max, std::hypot(static_cast<double>(v.x()), static_cast<double>(v.y())));
     cov->radius_mm = std::max(0.5, 0.6 * r_max * views.step_rad);
-    cov->radius_rule = "the table step: 0.6 x the largest radius x the step, at least 0.5 mm (no line spacing)";
+    cov->radius_rule =
+        "the table step: 0.6 x the largest radius x the step, at least 0.5 mm (no line spacing)";
   }
 }
 
@@ -792,11 +795,13 @@ std::string EvaluationSummary(const EvaluationReport& r) {
 
 // ---- Reach: where coverage is lost (evaluate.h, EvaluateReach) ----
 
-Result<ScanRig> LoadScanRig(const std::filesystem::path& bundle_dir, const std::filesystem::path& scene_path) {
+Result<ScanRig> LoadScanRig(const std::filesystem::path& bundle_dir,
+                            const std::filesystem::path& scene_path) {
   if (scene_path.empty()) return InvalidArgumentError("the rig's reach needs the scene (--scene)");
   ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene scene, sim::LoadScene(scene_path));
   int placement = 0;
-  if (auto header = bundle::ReadBundle(bundle_dir, {false}); header.ok()) placement = header->header.placement;
+  if (auto header = bundle::ReadBundle(bundle_dir, {false}); header.ok())
+    placement = header->header.placement;
   Eigen::Isometry3d truth_from_reference;
   ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene placed, sim::PlaceScene(scene, placement, &truth_from_reference));
   (void)placed;
@@ -808,7 +813,8 @@ Result<ScanRig> LoadScanRig(const std::filesystem::path& bundle_dir, const std::
     Eigen::Isometry3d table_from_reference;
     ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene other, sim::PlaceScene(scene, k, &table_from_reference));
     (void)other;
-    rig.placement_rotation.push_back(table_from_reference.linear() * truth_from_reference.linear().transpose());
+    rig.placement_rotation.push_back(table_from_reference.linear() *
+                                     truth_from_reference.linear().transpose());
   }
   return rig;
 }
@@ -848,8 +854,9 @@ std::vector<Eigen::Vector3d> SphereDirections(int n) {
 }
 
 // Whether the rig can scan truth-frame point p with the object in `pose` (evaluate.h, ScanRig).
-bool Scannable(const Occluder& occluder, const ScanRig& s, const std::array<Eigen::Isometry3d, 3>& cam_from_table,
-               const Eigen::Isometry3d& pose, double clearance_mm, double min_cos, const Sample& sample) {
+bool Scannable(const Occluder& occluder, const ScanRig& s,
+               const std::array<Eigen::Isometry3d, 3>& cam_from_table, const Eigen::Isometry3d& pose,
+               double clearance_mm, double min_cos, const Sample& sample) {
   const Eigen::Vector3f& p = sample.point;
   const Eigen::Vector3d q = pose * p.cast<double>();
   const Eigen::Vector3d normal = pose.linear() * sample.normal.cast<double>();
@@ -860,7 +867,8 @@ bool Scannable(const Occluder& occluder, const ScanRig& s, const std::array<Eige
     const geometry::Plane& plane = rig.laser_plane[l];
     // The plane's signed distance of q seen at table angle t is A cos t + B sin t + C.
     // (cam_from_table: at 0, 90 and 180 degrees.)
-    const double f0 = plane.SignedDistance(cam_from_table[0] * q), f90 = plane.SignedDistance(cam_from_table[1] * q),
+    const double f0 = plane.SignedDistance(cam_from_table[0] * q),
+                 f90 = plane.SignedDistance(cam_from_table[1] * q),
                  f180 = plane.SignedDistance(cam_from_table[2] * q);
     const double a = 0.5 * (f0 - f180), c = 0.5 * (f0 + f180), b = f90 - c;
     const double r = std::hypot(a, b);
@@ -883,8 +891,8 @@ bool Scannable(const Occluder& occluder, const ScanRig& s, const std::array<Eige
 
 // One bit per sample: scannable in `pose`.
 std::vector<uint64_t> ScannableBits(const Occluder& occluder, const ScanRig& s, const Eigen::Isometry3d& pose,
-                                    double clearance_mm, double max_incidence_deg, const std::vector<Sample>& samples,
-                                    int threads) {
+                                    double clearance_mm, double max_incidence_deg,
+                                    const std::vector<Sample>& samples, int threads) {
   const double min_cos = std::cos(max_incidence_deg * 3.14159265358979323846 / 180.0);
   const double pi = 3.14159265358979323846;
   const std::array<Eigen::Isometry3d, 3> cam_from_table = {s.rig.WorldFromCamAtAngle(0).inverse(),
@@ -896,7 +904,8 @@ std::vector<uint64_t> ScannableBits(const Occluder& occluder, const ScanRig& s, 
     for (size_t w = begin; w < end; ++w) {
       uint64_t word = 0;
       for (size_t i = 64 * w; i < std::min(samples.size(), 64 * w + 64); ++i) {
-        if (Scannable(occluder, s, cam_from_table, pose, clearance_mm, min_cos, samples[i])) word |= uint64_t{1} << (i % 64);
+        if (Scannable(occluder, s, cam_from_table, pose, clearance_mm, min_cos, samples[i]))
+          word |= uint64_t{1} << (i % 64);
       }
       bits[w] = word;
     }
@@ -910,13 +919,16 @@ size_t CountUnion(const std::vector<uint64_t>& a, const std::vector<uint64_t>& b
   return n;
 }
 
-bool Bit(const std::vector<uint64_t>& bits, size_t i) { return ((bits[i / 64] >> (i % 64)) & 1) != 0; }
+bool Bit(const std::vector<uint64_t>& bits, size_t i) {
+  return ((bits[i / 64] >> (i % 64)) & 1) != 0;
+}
 
 }  // namespace
 
 Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSurface& truth,
-                                  const EvaluationViews& views, const ScanRig& rig, const EvaluateOptions& options,
-                                  const ReachOptions& reach, Progress* progress) {
+                                  const EvaluationViews& views, const ScanRig& rig,
+                                  const EvaluateOptions& options, const ReachOptions& reach,
+                                  Progress* progress) {
   ROTOSCAN_RETURN_IF_ERROR(options.Check());
   const bundle::TruthMesh& mesh = truth.mesh;
   if (cloud.empty()) return InvalidArgumentError("the cloud has no points");
@@ -954,19 +966,20 @@ Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSur
   std::vector<Eigen::Vector3d> ups = SphereDirections(reach.orientations);
   std::vector<Eigen::Vector3d> given_ups;
   for (int k : report.placements)
-    given_ups.push_back(rig.placement_rotation[static_cast<size_t>(k)].transpose() * Eigen::Vector3d::UnitZ());
+    given_ups.push_back(rig.placement_rotation[static_cast<size_t>(k)].transpose() *
+                        Eigen::Vector3d::UnitZ());
   std::vector<std::vector<uint64_t>> bits;
   {
     ProgressScope scope(progress, "reach: poses", ups.size() + given_ups.size());
     for (const Eigen::Vector3d& up : given_ups) {
-      bits.push_back(ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)), options.table_clearance_mm,
-                                   reach.max_incidence_deg, few, threads));
+      bits.push_back(ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)),
+                                   options.table_clearance_mm, reach.max_incidence_deg, few, threads));
       scope.Advance();
     }
     for (const Eigen::Vector3d& up : ups) {
       if (scope.Cancelled()) return CancelledError("evaluation cancelled");
-      bits.push_back(ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)), options.table_clearance_mm,
-                                   reach.max_incidence_deg, few, threads));
+      bits.push_back(ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)),
+                                   options.table_clearance_mm, reach.max_incidence_deg, few, threads));
       scope.Advance();
     }
   }
@@ -988,7 +1001,8 @@ Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSur
     for (size_t w = 0; w < any.size(); ++w) any[w] |= b[w];
 
   // The figures at full resolution: the given placements, the best poses, coverage by class.
-  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<Sample> samples, SampleSurface(mesh, options, &unused, &area_per_sample));
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<Sample> samples,
+                            SampleSurface(mesh, options, &unused, &area_per_sample));
   report.samples = samples.size();
   report.area_mm2 = static_cast<double>(samples.size()) * area_per_sample;
   if (samples.empty()) return report;
@@ -1097,32 +1111,35 @@ Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSur
 std::string ReachSummary(const ReachReport& r) {
   std::string out;
   char line[400];
-  std::snprintf(line, sizeof(line),
-                "reach (%zu samples, %.0f mm^2, radius %.2f mm): covered %.4f; scannable in the cloud's placements "
-                "%.4f (covered %.4f of it; covered but not scannable %.4f); scannable in some pose %.4f\n",
-                r.samples, r.area_mm2, r.radius_mm, r.covered, r.scannable_given, r.covered_of_scannable_given,
-                r.covered_not_scannable, r.scannable_any);
+  std::snprintf(
+      line, sizeof(line),
+      "reach (%zu samples, %.0f mm^2, radius %.2f mm): covered %.4f; scannable in the cloud's placements "
+      "%.4f (covered %.4f of it; covered but not scannable %.4f); scannable in some pose %.4f\n",
+      r.samples, r.area_mm2, r.radius_mm, r.covered, r.scannable_given, r.covered_of_scannable_given,
+      r.covered_not_scannable, r.scannable_any);
   out += line;
   for (size_t k = 0; k < r.placements.size(); ++k) {
     std::snprintf(line, sizeof(line), "reach: placement %d alone: scannable %.4f\n", r.placements[k],
                   r.scannable_placement[k]);
     out += line;
   }
-  std::snprintf(line, sizeof(line),
-                "reach: best second pose after placement %d: up (%.3f %.3f %.3f) of the truth frame, scannable "
-                "%.4f; best pair of poses: up (%.3f %.3f %.3f) and (%.3f %.3f %.3f), scannable %.4f\n",
-                r.placements.empty() ? 0 : r.placements[0], r.best_second_up.x(), r.best_second_up.y(),
-                r.best_second_up.z(), r.best_second, r.best_pair_up[0].x(), r.best_pair_up[0].y(),
-                r.best_pair_up[0].z(), r.best_pair_up[1].x(), r.best_pair_up[1].y(), r.best_pair_up[1].z(),
-                r.best_pair);
+  std::snprintf(
+      line, sizeof(line),
+      "reach: best second pose after placement %d: up (%.3f %.3f %.3f) of the truth frame, scannable "
+      "%.4f; best pair of poses: up (%.3f %.3f %.3f) and (%.3f %.3f %.3f), scannable %.4f\n",
+      r.placements.empty() ? 0 : r.placements[0], r.best_second_up.x(), r.best_second_up.y(),
+      r.best_second_up.z(), r.best_second, r.best_pair_up[0].x(), r.best_pair_up[0].y(),
+      r.best_pair_up[0].z(), r.best_pair_up[1].x(), r.best_pair_up[1].y(), r.best_pair_up[1].z(),
+      r.best_pair);
   out += line;
   for (const UncoveredRegion& g : r.regions) {
-    std::snprintf(line, sizeof(line),
-                  "uncovered region: %.1f mm^2 (%.2f %% of the surface) around (%.1f %.1f %.1f) mm, box (%.1f "
-                  "%.1f %.1f)-(%.1f %.1f %.1f): scannable in the cloud's placements %.2f, in some pose %.2f\n",
-                  g.area_mm2, 100.0 * g.area_mm2 / std::max(1e-9, r.area_mm2), g.centroid.x(), g.centroid.y(),
-                  g.centroid.z(), g.lo.x(), g.lo.y(), g.lo.z(), g.hi.x(), g.hi.y(), g.hi.z(), g.scannable_given,
-                  g.scannable_any);
+    std::snprintf(
+        line, sizeof(line),
+        "uncovered region: %.1f mm^2 (%.2f %% of the surface) around (%.1f %.1f %.1f) mm, box (%.1f "
+        "%.1f %.1f)-(%.1f %.1f %.1f): scannable in the cloud's placements %.2f, in some pose %.2f\n",
+        g.area_mm2, 100.0 * g.area_mm2 / std::max(1e-9, r.area_mm2), g.centroid.x(), g.centroid.y(),
+        g.centroid.z(), g.lo.x(), g.lo.y(), g.lo.z(), g.hi.x(), g.hi.y(), g.hi.z(), g.scannable_given,
+        g.scannable_any);
     out += line;
   }
   return out;

@@ -2,11 +2,12 @@
 // PLY, one vertex per point with x y z (float, mm, table frame), nx ny nz (float, unit, zero when
 // unknown), red green blue (uchar), laser (uchar: 0 left, 1 right), step (int: table step index) and
 // quality (float, 0..1), and in merged clouds of several placements (pipeline/placements.h) placement
-// (uchar: the index of the scan the point came from; absent means 0). Two optional header comments say where the camera was (ScanGeometry):
-// `comment rotoscan camera_at_step0 X Y Z` (mm, table frame) and `comment rotoscan step_deg S`; a merged
-// cloud adds one per placement: `comment rotoscan placement K camera_at_step0 X Y Z step_deg S
-// merged_from_table M00 M01 M02 M03 M10 ... M23` (its camera path in its own table frame and its pose in the
-// merged frame, the top 3 x 4 of the matrix row by row). A malformed camera comment is ignored (no path).
+// (uchar: the index of the scan the point came from; absent means 0). Two optional header comments say where
+// the camera was (ScanGeometry): `comment rotoscan camera_at_step0 X Y Z` (mm, table frame) and `comment
+// rotoscan step_deg S`; a merged cloud adds one per placement: `comment rotoscan placement K camera_at_step0
+// X Y Z step_deg S merged_from_table M00 M01 M02 M03 M10 ... M23` (its camera path in its own table frame and
+// its pose in the merged frame, the top 3 x 4 of the matrix row by row). A malformed camera comment is
+// ignored (no path).
 //
 // The reader is hardened (STYLE.md §9): every count read from the file is bounded by the bytes that are
 // really there before anything is allocated, a truncated or malformed file is kCorruptData naming the

@@ -169,8 +169,8 @@ Result<EvaluationViews> LoadEvaluationViews(const std::filesystem::path& bundle_
 // about the table axis changes nothing over a whole turn, so the orientations tried are the directions of
 // the object that point up (a Fibonacci sphere).
 struct ScanRig {
-  geometry::Rig rig;                        // the true rig
-  Eigen::Vector3d laser_origin_in_cam[2];   // the lasers' origins (scene "lasers.*.origin_mm")
+  geometry::Rig rig;                       // the true rig
+  Eigen::Vector3d laser_origin_in_cam[2];  // the lasers' origins (scene "lasers.*.origin_mm")
   // Each placement's rotation from the truth mesh's frame (the bundle's placement) to that placement's
   // (indexed by the scene's placement index).
   std::vector<Eigen::Matrix3d> placement_rotation;
@@ -183,12 +183,13 @@ struct ReachOptions {
   // The largest angle between the surface's normal and the rays to the camera and to the laser (90: the
   // geometric bound; a line at grazing incidence is too faint and wide to extract).
   double max_incidence_deg = 90.0;
-  size_t max_regions = 12;          // the largest regions reported
+  size_t max_regions = 12;  // the largest regions reported
 };
 
 struct UncoveredRegion {
   double area_mm2 = 0;
-  Eigen::Vector3d centroid = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Zero(),
+                  hi = Eigen::Vector3d::Zero();
   double scannable_given = 0;  // share of its area scannable in one of the cloud's placements
   double scannable_any = 0;    // share scannable in some pose
 };
@@ -222,8 +223,9 @@ struct ReachReport {
 // truth frame). kInvalidArgument / kNotFound as LoadTruthSurface.
 Result<ScanRig> LoadScanRig(const std::filesystem::path& bundle_dir, const std::filesystem::path& scene_path);
 
-// The whole surface's coverage by `cloud` split by reach (above). kInvalidArgument for a cloud whose
-// placements the rig does not have, and as EvaluateCloud.
+// The whole surface's coverage by `cloud` split by reach (above). A point's `placement` k is taken as the
+// scene's placement k (rotoscan merge numbers the clouds in the order given: merge them in the scene's
+// order). kInvalidArgument for a cloud whose placements the rig does not have, and as EvaluateCloud.
 Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSurface& truth,
                                   const EvaluationViews& views, const ScanRig& rig,
                                   const EvaluateOptions& options = {}, const ReachOptions& reach = {},
