@@ -4,13 +4,15 @@
 //   2. calibrate the rig from it (camera, both laser planes, table axis: three steps + joint refinement),
 //   3. render a scan of the bundled Spot model (textured) with both lasers over a whole turn (--steps steps
 //      of 360 / steps degrees), upright (placement 0), and a
-//      second one with Spot on its side (placement 1, --side-steps, as many by default: with half as many
-//      its lines are twice as far apart and the merged surface is covered 94 % at their spacing, not 95 %),
+//      second one with Spot nose down (placement 1 of data/scenes/spot.json, the best second pose of the
+//      rig's reach: rotoscan evaluate --reach; --side-steps, as many by default; the files keep the names
+//      scan-bundle-side and cloud-side.ply of when it lay on its side),
 //   4. process both with the calibration into colored point clouds (each point's color from the natural
 //      frames that see it best, the lamp's shading divided out),
 //   5. align and merge the two placements (rotoscan merge, checked against the true poses),
-//   6. mesh the merged cloud (range-scan fusion) and draw previews of the cloud and the mesh (front, side,
-//      back, top),
+//   6. mesh the merged cloud (range-scan fusion, watertight: the merged cloud carries each placement's
+//      camera path; the bottom from the second scan, not the table plane) and draw previews of the cloud
+//      and the mesh (front, side, back, top),
 //   7. compare the clouds and the mesh with the true surface,
 //   8. write the one-page report (report.html: the pictures and every stage's figures and time).
 // Each stage is the command of the same name run with the arguments printed, so that a person can re-run
@@ -36,7 +38,7 @@ struct DemoOptions {
   std::string out_dir = "rotoscan-demo";
   std::string data_dir = ROTOSCAN_DATA_DIR;
   int steps = 200;
-  int side_steps = 0;  // placement 1; 0: as many as --steps
+  int side_steps = 0;  // placement 1 (nose down); 0: as many as --steps
 };
 
 namespace {
@@ -128,17 +130,19 @@ int RunDemo(const DemoOptions& options, const Context& context) {
            " steps, both lasers)",
        {"simulate", scene, "--kind", "scan", "--steps", std::to_string(options.steps), "--step-deg",
         Degrees(360.0 / options.steps), "--out", scan_bundle, "--overwrite"}},
-      {"4/7 render the scan of Spot on its side (placement 1, " + std::to_string(side_steps) + " steps)",
+      {"4/7 render the scan of Spot nose down (placement 1, " + std::to_string(side_steps) + " steps)",
        {"simulate", scene, "--kind", "scan", "--placement", "1", "--steps", std::to_string(side_steps),
         "--step-deg", Degrees(360.0 / side_steps), "--out", side_bundle, "--overwrite"}},
       {"5/7 process the upright scan into a colored point cloud",
        {"process", scan_bundle, "--calib", calib, "--out", cloud}},
-      {"5/7 process the scan on its side", {"process", side_bundle, "--calib", calib, "--out", side_cloud}},
+      {"5/7 process the scan nose down", {"process", side_bundle, "--calib", calib, "--out", side_cloud}},
       {"5/7 align and merge the two placements (checked against the true poses)",
        {"merge", cloud, side_cloud, "--out", merged, "--truth", scan_bundle, "--truth", side_bundle}},
-      // Open fusion: --watertight needs each point's camera, which a merged cloud does not carry yet.
-      {"6/7 mesh the merged cloud (range-scan fusion) and preview the cloud and the mesh",
-       {"mesh", merged, "--out", mesh, "--preview", preview, "--cloud-preview", cloud_preview}},
+      // Watertight: the merged cloud carries each placement's camera path; the second scan saw the soles, so
+      // the bottom is not closed with the table plane (closed, genus 0; README "Placements and color").
+      {"6/7 mesh the merged cloud (watertight range-scan fusion) and preview the cloud and the mesh",
+       {"mesh", merged, "--watertight", "--open-bottom", "--out", mesh, "--preview", preview, "--cloud-preview",
+        cloud_preview}},
       {"7/7 compare the upright cloud with the true surface",
        {"evaluate", cloud, "--truth", scan_bundle, "--scene", scene}},
       {"7/7 compare the merged cloud with the true surface",
@@ -147,7 +151,7 @@ int RunDemo(const DemoOptions& options, const Context& context) {
   };
   mesh::ScanReport report;
   report.title = "Rotoscan demo: Spot, " + std::to_string(options.steps) + " steps upright and " +
-                 std::to_string(side_steps) + " on its side";
+                 std::to_string(side_steps) + " nose down";
   bool calibration_warning = false;
   fs::remove(calib, ec);  // so that a calib.yaml found after stage 3 is this run's
   const auto demo_start = std::chrono::steady_clock::now();
@@ -206,7 +210,7 @@ void RegisterDemo(CLI::App& app, const Context& context, int* exit_code) {
       ->capture_default_str()
       ->check(CLI::Range(4, 100000));
   sub->add_option("--side-steps", options->side_steps,
-                  "table steps of the second scan, Spot on its side (0: as many as --steps)")
+                  "table steps of the second scan, Spot nose down (0: as many as --steps)")
       ->capture_default_str()
       ->check(CLI::Range(0, 100000));
   sub->callback([options, &context, exit_code] { *exit_code = RunDemo(*options, context); });

@@ -1,5 +1,6 @@
 // rotoscan evaluate: Compare a point cloud with ground truth (distance, coverage, color error), or with
 // --lines the line extraction of a bundle against truth/lines.
+#include <array>
 #include <cstdio>
 #include <ostream>
 
@@ -13,7 +14,9 @@
 namespace rotoscan::cli {
 
 struct EvaluateCommandOptions {
-  std::string cloud, truth, lines, scene, report;
+  std::string cloud, truth, lines, scene, report, uncovered;
+  bool reach = false;
+  pipeline::ReachOptions reach_options;
   std::string estimator = "com";
   size_t max_frames = 0;
   pipeline::EvaluateOptions evaluate;
@@ -46,6 +49,20 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
   if (!checked.ok()) return fail(checked);
   if (!o.report.empty()) {
     checked = CheckOutputPaths({{o.report, "--report"}}, {o.cloud, o.truth, o.scene});
+    if (!checked.ok()) return fail(checked);
+  }
+  const bool reach = o.reach || !o.uncovered.empty();
+  if (reach && mesh::IsMeshFile(o.cloud)) {
+    *context.err << "rotoscan evaluate: --reach and --uncovered take a point cloud, not a mesh\n";
+    return kExitUsage;
+  }
+  if (reach && o.scene.empty()) {
+    *context.err
+        << "rotoscan evaluate: --reach and --uncovered need --scene (the rig's lasers and the placements)\n";
+    return kExitUsage;
+  }
+  if (!o.uncovered.empty()) {
+    checked = CheckOutputPaths({{o.uncovered, "--uncovered"}}, {o.cloud, o.truth, o.scene, o.report});
     if (!checked.ok()) return fail(checked);
   }
   // A mesh is compared through its vertices: distance mesh -> truth, and coverage (truth -> mesh: the visible
@@ -85,6 +102,33 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
     if (!written.ok()) return fail(written);
   }
   *context.out << pipeline::EvaluationSummary(*report);
+  if (reach) {
+    auto rig = pipeline::LoadScanRig(o.truth, o.scene);
+    if (!rig.ok()) return fail(rig.status());
+    auto where =
+        pipeline::EvaluateReach(*cloud, *truth, *views, *rig, o.evaluate, o.reach_options, context.progress);
+    if (!where.ok()) return fail(where.status());
+    *context.out << pipeline::ReachSummary(*where);
+    if (!o.uncovered.empty()) {
+      // Yellow: scannable in the cloud's placements (missed by the scan); blue: only in another pose; red:
+      // in no pose tried.
+      static constexpr std::array<std::array<uint8_t, 3>, 3> kClassColor = {
+          {{255, 210, 0}, {40, 110, 255}, {230, 20, 20}}};
+      cloud::PointCloud lost;
+      for (size_t i = 0; i < where->uncovered.size(); ++i) {
+        cloud::CloudPoint p;
+        p.position_in_table = where->uncovered[i];
+        p.normal = where->uncovered_normal[i];
+        p.color = kClassColor[where->uncovered_class[i]];
+        lost.points.push_back(p);
+      }
+      Status written = cloud::WritePly(o.uncovered, lost);
+      if (!written.ok()) return fail(written);
+      *context.out
+          << "uncovered: " << lost.size() << " samples written to " << o.uncovered
+          << " (yellow: scannable in the cloud's placements, blue: only in another pose, red: in none)\n";
+    }
+  }
   if (is_mesh) {
     char line[200];
     std::snprintf(line, sizeof(line),
@@ -113,6 +157,19 @@ void RegisterEvaluate(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--spacing", o.evaluate.sample_spacing_mm, "surface sample spacing for coverage, mm")
       ->capture_default_str();
   sub->add_option("--threads", o.evaluate.threads, "worker threads (0: all cores)");
+  sub->add_flag(
+      "--reach", o.reach,
+      "split the whole surface's coverage by what the rig can scan in the cloud's placements and in any "
+      "pose, with the uncovered regions and the best second pose (needs --scene; a cloud, not a mesh)");
+  sub->add_option("--uncovered", o.uncovered,
+                  "write the uncovered true-surface samples to this PLY, colored by reach (implies --reach)");
+  sub->add_option("--reach-poses", o.reach_options.orientations,
+                  "object orientations (up directions) tried for the best poses")
+      ->capture_default_str();
+  sub->add_option(
+         "--reach-incidence", o.reach_options.max_incidence_deg,
+         "largest incidence (degrees from the normal) at which the camera sees and a laser lights a point")
+      ->capture_default_str();
   sub->add_option("--lines", o.lines,
                   "a virtual scanner bundle: line centre error of the extraction against truth/lines");
   sub->add_option("--estimator", o.estimator, "sub-pixel estimator for --lines")->capture_default_str();

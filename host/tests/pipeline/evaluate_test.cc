@@ -290,6 +290,81 @@ TEST(EvaluateTest, BadInputIsAnError) {
   EXPECT_EQ(LoadEvaluationViews(dir.path()).status().code(), StatusCode::kNotFound);
 }
 
+// Reach: a 20 x 20 x 40 mm box standing on the table, taller than the camera (25 mm above the table top),
+// so its top is hidden from the camera at every table angle; laid on a side, the top is a side and is
+// scanned like the others. A cloud of every face but the top leaves the top uncovered: one region, not
+// scannable upright, scannable in another pose, and the best second pose lays the box down.
+TEST(EvaluateTest, ReachFindsTheHiddenTopAndThePoseThatScansIt) {
+  constexpr float kTall = 40.0f;
+  bundle::TruthMesh tall = Box();
+  for (Eigen::Vector3f& v : tall.vertices) v.z() *= kTall / kHeight;
+  cloud::PointCloud cloud;
+  for (float a = -kHalf; a <= kHalf + 1e-3f; a += 0.2f) {
+    for (float b = 0; b <= kTall + 1e-3f; b += 0.2f) {
+      for (const Eigen::Vector3f& q : {Eigen::Vector3f(kHalf, a, b), Eigen::Vector3f(-kHalf, a, b),
+                                       Eigen::Vector3f(a, kHalf, b), Eigen::Vector3f(a, -kHalf, b)}) {
+        cloud::CloudPoint p;
+        p.position_in_table = q;
+        cloud.points.push_back(p);
+      }
+    }
+  }
+  const geometry::Rig rig = SmallRig();
+  ScanRig scan_rig;
+  scan_rig.rig = rig;
+  scan_rig.laser_origin_in_cam[0] = Eigen::Vector3d(-173.2, 0, 0);
+  scan_rig.laser_origin_in_cam[1] = Eigen::Vector3d(173.2, 0, 0);
+  scan_rig.placement_rotation = {Eigen::Matrix3d::Identity()};
+  ReachOptions reach;
+  reach.orientations = 50;
+  EvaluateOptions o = TestOptions();
+  auto r = EvaluateReach(cloud, TruthSurface{tall, {}, "vertex colors"}, Views(rig, 36), scan_rig, o, reach);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  // The surface above the 0.5 mm clearance: 4 sides of 20 x 39.5 and the top (400 mm^2); ~1 % sampling noise.
+  const double area = 4 * 20.0 * 39.5 + 400.0;
+  EXPECT_NEAR(r->area_mm2, area, 0.03 * area);
+  // Covered: all but the top, less the 0.5 mm radius's strip along its edges (4 x 20 x 0.5 mm^2).
+  EXPECT_NEAR(r->covered, (area - 400.0 + 40.0) / area, 0.015);
+  // Upright, the sides are scannable and the top is not: every covered sample of the sides is.
+  EXPECT_NEAR(r->scannable_given, (area - 400.0) / area, 0.015);
+  EXPECT_GT(r->covered_of_scannable_given, 0.99);
+  EXPECT_LT(r->covered_not_scannable, 0.015);  // the top's strip within the radius
+  EXPECT_GT(r->scannable_any, 0.99);
+  ASSERT_FALSE(r->regions.empty());
+  EXPECT_NEAR(r->regions[0].area_mm2, 400.0 - 40.0, 40.0);
+  EXPECT_NEAR(r->regions[0].centroid.z(), kTall, 0.05);
+  EXPECT_LT(r->regions[0].scannable_given, 0.02);
+  EXPECT_GT(r->regions[0].scannable_any, 0.98);
+  // A second pose that tilts the top towards the camera (not upright, not upside down: then the top is on
+  // the table) scans the rest.
+  EXPECT_GT(r->best_second, 0.99);
+  EXPECT_LT(r->best_second_up.z(), 0.95) << r->best_second_up.transpose();
+  EXPECT_GT(r->best_second_up.z(), -0.95) << r->best_second_up.transpose();
+  ASSERT_EQ(r->uncovered.size(), r->uncovered_class.size());
+  size_t other_pose = 0;
+  for (uint8_t c : r->uncovered_class) other_pose += c == 1;
+  EXPECT_GT(other_pose, r->uncovered.size() * 9 / 10);
+  // With a limit on the incidence: where a laser's plane (through the axis) crosses a side near a corner,
+  // the laser meets it at up to 45 degrees from its normal whichever laser it is, so 40 degrees leaves the
+  // sides' outer parts out.
+  reach.max_incidence_deg = 40;
+  auto strict =
+      EvaluateReach(cloud, TruthSurface{tall, {}, "vertex colors"}, Views(rig, 36), scan_rig, o, reach);
+  ASSERT_TRUE(strict.ok()) << strict.status().ToString();
+  EXPECT_LT(strict->scannable_given, r->scannable_given - 0.05);
+  // Bad input.
+  reach.max_incidence_deg = 0;
+  EXPECT_EQ(EvaluateReach(cloud, TruthSurface{tall, {}, "vertex colors"}, Views(rig, 36), scan_rig, o, reach)
+                .status()
+                .code(),
+            StatusCode::kInvalidArgument);
+  cloud.points[0].placement = 3;  // a placement the rig does not have
+  EXPECT_EQ(EvaluateReach(cloud, TruthSurface{tall, {}, "vertex colors"}, Views(rig, 36), scan_rig, o, {})
+                .status()
+                .code(),
+            StatusCode::kInvalidArgument);
+}
+
 // A bundle directory with bundle.json (4 table steps, no frame files), truth/rig.yaml and truth/object.ply.
 void WriteBoxBundle(const std::filesystem::path& dir, const geometry::Rig& rig) {
   bundle::BundleHeader header;
@@ -370,6 +445,14 @@ TEST(EvaluateCommandTest, ReportsEveryMetricAndWritesJson) {
   EXPECT_FALSE(std::filesystem::exists(report2));
   // Neither a cloud nor --lines: usage.
   EXPECT_EQ(RunCli({"evaluate"}, &out, &err), 2);
+  // --reach and --uncovered need the scene (the lasers' origins, the placements): usage, nothing written.
+  const std::string uncovered = (dir.path() / "uncovered.ply").string();
+  EXPECT_EQ(RunCli({"evaluate", (dir.path() / "cloud.ply").string(), "--truth", (dir.path() / "scan").string(),
+                    "--uncovered", uncovered},
+                   &out, &err),
+            2);
+  EXPECT_NE(err.find("--scene"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(uncovered));
 }
 
 }  // namespace

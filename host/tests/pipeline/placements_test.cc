@@ -14,6 +14,7 @@
 
 #include "command.h"
 #include "rotoscan/bundle/truth.h"
+#include "rotoscan/core/file.h"
 #include "rotoscan/geometry/rigid.h"
 #include "rotoscan/sim/renderer.h"
 #include "rotoscan/sim/scene.h"
@@ -81,7 +82,7 @@ AlignOptions TestOptions() {
 }
 
 TEST(PlacementsTest, SpotOnItsSideIsAlignedToTheTruth) {
-  const Placed upright = PlaceSpot(0), side = PlaceSpot(1);
+  const Placed upright = PlaceSpot(0), side = PlaceSpot(2);
   // Placement 1 truly is another pose: turned by 90 degrees.
   EXPECT_NEAR(Eigen::AngleAxisd((upright.table_from_reference * side.table_from_reference.inverse()).linear())
                   .angle(),
@@ -209,7 +210,7 @@ int RunCli(std::vector<std::string> args, std::ostream& out, std::ostream& err) 
 // `rotoscan merge` end to end: the merged PLY has the placement of every point and the report says the
 // alignment's figures; a bad hint is a clear error and no file.
 TEST(PlacementsTest, MergeCommandWritesPlacementsPerPoint) {
-  const Placed upright = PlaceSpot(0), side = PlaceSpot(1);
+  const Placed upright = PlaceSpot(0), side = PlaceSpot(2);
   testing::ScratchDir dir;
   ASSERT_TRUE(cloud::WritePly(dir / "a.ply", SampleScan(upright.mesh, 0.6, 0.03, 7)).ok());
   ASSERT_TRUE(cloud::WritePly(dir / "b.ply", SampleScan(side.mesh, 0.6, 0.03, 8)).ok());
@@ -229,6 +230,65 @@ TEST(PlacementsTest, MergeCommandWritesPlacementsPerPoint) {
   for (const cloud::CloudPoint& p : read->points) ones += p.placement == 1;
   EXPECT_GT(ones, 1000u);
   EXPECT_LT(ones, read->size());
+}
+
+// Clouds that know their camera path (rotoscan process writes it) merge into a cloud that knows each
+// placement's, moved by the alignment: a point of placement 1 seen at step s has its camera where the
+// second scan's camera was at step s, in the merged frame; mesh --watertight takes the merged cloud.
+TEST(PlacementsTest, MergedCloudCarriesEachPlacementsCameraPath) {
+  const Placed upright = PlaceSpot(0), side = PlaceSpot(2);
+  cloud::PointCloud a = SampleScan(upright.mesh, 0.6, 0.03, 7), b = SampleScan(side.mesh, 0.6, 0.03, 8);
+  const double step = geometry::DegToRad(1.8);
+  for (cloud::PointCloud* c : {&a, &b}) {
+    c->scan.known = true;
+    c->scan.camera_at_step0 = Eigen::Vector3d(0, -310, 95);
+    c->scan.step_rad = c == &a ? -step : -2 * step;  // the second scan with half as many steps
+    // Each point's step: the one whose camera faces it best (any will do for the path's test).
+    for (cloud::CloudPoint& p : c->points) {
+      const double azimuth = std::atan2(p.position_in_table.y(), p.position_in_table.x());
+      p.step = static_cast<int32_t>(std::lround((azimuth + 3.14159265358979 / 2) / c->scan.step_rad)) % 400;
+    }
+  }
+  auto merged = MergePlacements({a, b}, TestOptions());
+  ASSERT_TRUE(merged.ok()) << merged.status().ToString();
+  const cloud::ScanGeometry& scan = merged->cloud.scan;
+  ASSERT_TRUE(scan.known);
+  ASSERT_EQ(scan.placements.size(), 2u);
+  const Eigen::Isometry3d truth = upright.table_from_reference * side.table_from_reference.inverse();
+  // The alignment's own accuracy (SpotOnItsSideIsAlignedToTheTruth): ~0.02 degrees, ~0.01 mm.
+  const Eigen::Isometry3d& moved = scan.placements[1].merged_from_table;
+  EXPECT_LT((moved.linear() - truth.linear()).cwiseAbs().maxCoeff(), 1e-3);
+  EXPECT_LT((moved.translation() - truth.translation()).norm(), 0.05);
+  EXPECT_NEAR(scan.placements[1].step_rad, -2 * step, 1e-12);
+  // Placement 0's cameras are the first scan's; placement 1's are the second scan's, moved.
+  EXPECT_LT((scan.CameraAt(0, 17) - a.scan.CameraAtStep(17)).norm(), 1e-9);
+  EXPECT_LT((scan.CameraAt(1, 17) - truth * b.scan.CameraAtStep(17)).norm(), 0.5);
+  // Through the file and into the watertight mesh.
+  testing::ScratchDir dir;
+  ASSERT_TRUE(cloud::WritePly(dir / "m.ply", merged->cloud).ok());
+  auto read = cloud::ReadPly(dir / "m.ply");
+  ASSERT_TRUE(read.ok()) << read.status().ToString();
+  ASSERT_TRUE(read->scan.known);
+  ASSERT_EQ(read->scan.placements.size(), 2u);
+  EXPECT_LT((read->scan.CameraAt(1, 17) - scan.CameraAt(1, 17)).norm(), 1e-9);
+  std::ostringstream out, err;
+  EXPECT_EQ(RunCli({"mesh", (dir / "m.ply").string(), "--watertight", "--open-bottom", "--out",
+                    (dir / "mesh.ply").string()},
+                   out, err),
+            cli::kExitOk)
+      << err.str();
+  // A placement comment that does not parse drops the path (the cloud is still read).
+  auto text = ReadFile(dir / "m.ply");
+  ASSERT_TRUE(text.ok());
+  std::string broken = *text;
+  const size_t at = broken.find("merged_from_table 1 0 0");
+  ASSERT_NE(at, std::string::npos);
+  broken.replace(at, 23, "merged_from_table 2 0 0");  // not a rotation
+  ASSERT_TRUE(WriteFileAtomically(dir / "broken.ply", broken).ok());
+  auto broken_read = cloud::ReadPly(dir / "broken.ply");
+  ASSERT_TRUE(broken_read.ok()) << broken_read.status().ToString();
+  EXPECT_FALSE(broken_read->scan.known);
+  EXPECT_EQ(broken_read->size(), read->size());
 }
 
 }  // namespace

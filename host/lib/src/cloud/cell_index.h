@@ -1,9 +1,11 @@
-// A cloud's points bucketed by grid cell (private to the cloud module: merge.cc, filter.cc).
+// A cloud's points bucketed by grid cell (private to the library: cloud's merge.cc and filter.cc, pipeline's
+// evaluate.cc).
 #pragma once
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 #include <unordered_map>
 #include <utility>
 #include <vector>
@@ -35,6 +37,8 @@ class CellIndex {
     };
     return c(p.x(), dx) | (c(p.y(), dy) << 21) | (c(p.z(), dz) << 42);
   }
+  // Calls f(index) for every point in the 3 x 3 x 3 cells around p's (so every point within one cell of p).
+  // When f returns bool, false stops the search.
   template <typename F>
   void ForEachNear(const Eigen::Vector3f& p, F f) const {
     for (int dx = -1; dx <= 1; ++dx)
@@ -42,7 +46,13 @@ class CellIndex {
         for (int dz = -1; dz <= 1; ++dz) {
           auto it = ranges_.find(Key(p, dx, dy, dz));
           if (it == ranges_.end()) continue;
-          for (size_t k = it->second.first; k < it->second.second; ++k) f(entries_[k].second);
+          for (size_t k = it->second.first; k < it->second.second; ++k) {
+            if constexpr (std::is_same_v<decltype(f(uint32_t{})), bool>) {
+              if (!f(entries_[k].second)) return;
+            } else {
+              f(entries_[k].second);
+            }
+          }
         }
   }
 

@@ -110,6 +110,15 @@ std::string EncodePly(const PointCloud& cloud) {
     scan << "comment rotoscan camera_at_step0 " << cloud.scan.camera_at_step0.x() << " "
          << cloud.scan.camera_at_step0.y() << " " << cloud.scan.camera_at_step0.z() << "\n"
          << "comment rotoscan step_deg " << cloud.scan.step_rad * 180.0 / kPi << "\n";
+    for (size_t k = 0; k < cloud.scan.placements.size() && k < 256; ++k) {
+      const ScanGeometry::Placement& p = cloud.scan.placements[k];
+      scan << "comment rotoscan placement " << k << " camera_at_step0 " << p.camera_at_step0.x() << " "
+           << p.camera_at_step0.y() << " " << p.camera_at_step0.z() << " step_deg "
+           << p.step_rad * 180.0 / kPi << " merged_from_table";
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 4; ++c) scan << " " << p.merged_from_table.matrix()(r, c);
+      scan << "\n";
+    }
     out += scan.str();
   }
   out +=
@@ -179,7 +188,8 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
   bool binary = false, have_format = false;
   std::vector<Element> elements;
   ScanGeometry scan;
-  bool have_camera = false, have_step = false;
+  bool have_camera = false, have_step = false, placements_broken = false;
+  std::vector<ScanGeometry::Placement> placements;
   while (std::getline(header, line)) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream words(line);
@@ -192,6 +202,33 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
         Eigen::Vector3d c;
         have_camera = static_cast<bool>(words >> c.x() >> c.y() >> c.z()) && c.allFinite() && c.cwiseAbs().maxCoeff() < 1e9;
         if (have_camera) scan.camera_at_step0 = c;
+      } else if (tag == "rotoscan" && key == "placement") {
+        // One placement's camera path (header comment above); anything malformed drops every path.
+        size_t index = 0;
+        std::string k1, k2, k3;
+        ScanGeometry::Placement p;
+        double deg = 0;
+        Eigen::Matrix<double, 3, 4> m;
+        bool ok = static_cast<bool>(words >> index >> k1 >> p.camera_at_step0.x() >> p.camera_at_step0.y() >>
+                                    p.camera_at_step0.z() >> k2 >> deg >> k3);
+        for (int r = 0; ok && r < 3; ++r)
+          for (int c = 0; ok && c < 4; ++c) ok = static_cast<bool>(words >> m(r, c));
+        ok = ok && k1 == "camera_at_step0" && k2 == "step_deg" && k3 == "merged_from_table" && index < 256 &&
+             index == placements.size() && p.camera_at_step0.allFinite() &&
+             p.camera_at_step0.cwiseAbs().maxCoeff() < 1e9 && std::isfinite(deg) && std::abs(deg) <= 360.0 &&
+             m.allFinite() && m.rightCols<1>().cwiseAbs().maxCoeff() < 1e9 &&
+             (m.leftCols<3>() * m.leftCols<3>().transpose() - Eigen::Matrix3d::Identity())
+                     .cwiseAbs()
+                     .maxCoeff() < 1e-6 &&
+             m.leftCols<3>().determinant() > 0;
+        if (ok) {
+          p.step_rad = deg * kPi / 180.0;
+          p.merged_from_table.linear() = m.leftCols<3>();
+          p.merged_from_table.translation() = m.rightCols<1>();
+          placements.push_back(p);
+        } else {
+          placements_broken = true;
+        }
       } else if (tag == "rotoscan" && key == "step_deg") {
         double deg = 0;
         have_step = static_cast<bool>(words >> deg) && std::isfinite(deg) && std::abs(deg) <= 360.0;
@@ -315,11 +352,27 @@ Result<PointCloud> DecodePly(const std::string& bytes, const std::string& name,
     p.quality = static_cast<float>(Finite(get(11, 0), -1e30, 1e30));
     p.placement = static_cast<uint8_t>(Finite(get(12, 0), 0.0, 255.0));
   }
-  if (have_camera && have_step) {
+  if (have_camera && have_step && !placements_broken) {
     scan.known = true;
-    cloud.scan = scan;
+    scan.placements = std::move(placements);
+    for (const CloudPoint& p : cloud.points) {
+      // A merged cloud's path must name every placement of its points.
+      if (p.placement != 0 && p.placement >= scan.placements.size()) scan.known = false;
+    }
+    if (!scan.known) scan.placements.clear();
+    if (scan.known) cloud.scan = scan;
   }
   return cloud;
+}
+
+Eigen::Vector3d ScanGeometry::CameraAt(int placement, int step) const {
+  if (placement < 0 || static_cast<size_t>(placement) >= placements.size()) return CameraAtStep(step);
+  const Placement& p = placements[static_cast<size_t>(placement)];
+  const double angle = p.step_rad * step;
+  const double c = std::cos(angle), s = std::sin(angle);
+  const Eigen::Vector3d own(c * p.camera_at_step0.x() - s * p.camera_at_step0.y(),
+                            s * p.camera_at_step0.x() + c * p.camera_at_step0.y(), p.camera_at_step0.z());
+  return p.merged_from_table * own;
 }
 
 Eigen::Vector3d ScanGeometry::CameraAtStep(int step) const {

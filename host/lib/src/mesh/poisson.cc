@@ -45,9 +45,11 @@ ColoredPoints ToColoredPoints(const cloud::PointCloud& cloud) {
     out.views.reserve(cloud.size());
     std::vector<int32_t> steps;
     for (const cloud::CloudPoint& p : cloud.points) {
-      const Eigen::Vector3d to_camera = cloud.scan.CameraAtStep(p.step) - p.position_in_table.cast<double>();
+      const Eigen::Vector3d to_camera =
+          cloud.scan.CameraAt(p.placement, p.step) - p.position_in_table.cast<double>();
       out.views.push_back(to_camera.norm() > 0 ? to_camera.normalized() : Eigen::Vector3d::Zero());
-      if (steps.empty() || steps.back() != p.step) steps.push_back(p.step);
+      // The cameras over the table top: the first placement's (a merged cloud's frame is its table).
+      if (p.placement == 0 && (steps.empty() || steps.back() != p.step)) steps.push_back(p.step);
     }
     std::sort(steps.begin(), steps.end());
     steps.erase(std::unique(steps.begin(), steps.end()), steps.end());

@@ -7,8 +7,8 @@
 //   straight at a triangle gives t_hit = inf), so visibility would be "everything".
 // - Visibility is tested view by view only for samples not yet found visible, so the cost is about
 //   (samples) + (never visible samples) x (views) rays.
-// - Coverage looks up cloud points in a uniform grid of cell = radius (27 cells per sample), built once
-//   over the points sorted by cell.
+// - Coverage looks up cloud points in a uniform grid of cell = radius (27 cells per sample: the cloud
+//   module's CellIndex), built once over the points sorted by cell.
 #include "rotoscan/pipeline/evaluate.h"
 
 #include <algorithm>
@@ -28,6 +28,7 @@
 #include <open3d/t/geometry/RaycastingScene.h>
 #include <nlohmann/json.hpp>
 
+#include "cloud/cell_index.h"
 #include "rotoscan/core/check.h"
 #include "rotoscan/geometry/rig.h"
 #include "rotoscan/sim/scene.h"
@@ -185,6 +186,7 @@ DistanceStats Stats(std::vector<double> d) {
 struct Sample {
   Eigen::Vector3f point;
   bool visible = false;
+  Eigen::Vector3f normal = Eigen::Vector3f::Zero();  // of its face (the mesh's winding)
 };
 
 // Area-uniform random samples of the mesh (one per spacing^2), without those near the table top.
@@ -226,7 +228,9 @@ Result<std::vector<Sample>> SampleSurface(const bundle::TruthMesh& mesh, const E
                               r1 * (1 - r2) * mesh.vertices[t[1]].cast<double>() +
                               r1 * r2 * mesh.vertices[t[2]].cast<double>();
     if (p.z() < o.table_clearance_mm) continue;
-    samples.push_back({p.cast<float>(), false});
+    const Eigen::Vector3d a = mesh.vertices[t[0]].cast<double>(), b = mesh.vertices[t[1]].cast<double>(),
+                          c = mesh.vertices[t[2]].cast<double>();
+    samples.push_back({p.cast<float>(), false, (b - a).cross(c - a).normalized().cast<float>()});
   }
   return samples;
 }
@@ -255,82 +259,51 @@ Status MarkVisible(const Occluder& occluder, const EvaluationViews& views, const
   return Status::Ok();
 }
 
-// Cloud points by grid cell of size `cell`.
+// Cloud points by grid cell of size `cell` (cloud/cell_index.h).
 class PointGrid {
  public:
-  PointGrid(const cloud::PointCloud& cloud, double cell) : cloud_(cloud), inv_cell_(1.0 / cell) {
-    order_.resize(cloud.size());
-    std::iota(order_.begin(), order_.end(), uint32_t{0});
-    std::vector<uint64_t> keys(cloud.size());
-    for (size_t i = 0; i < cloud.size(); ++i) keys[i] = Key(Cell(cloud.points[i].position_in_table));
-    std::sort(order_.begin(), order_.end(), [&](uint32_t a, uint32_t b) { return keys[a] < keys[b]; });
-    for (size_t i = 0; i < order_.size();) {
-      size_t j = i;
-      while (j < order_.size() && keys[order_[j]] == keys[order_[i]]) ++j;
-      ranges_.emplace(keys[order_[i]], std::make_pair(i, j));
-      i = j;
-    }
-  }
+  PointGrid(const cloud::PointCloud& cloud, double cell)
+      : cloud_(cloud), index_(cloud, AllPoints(cloud), cell) {}
 
   // The distance from p to the nearest point within one cell for which `other(point)` holds (inf: none).
   template <typename Other>
   float NearestWhere(const Eigen::Vector3f& p, Other other) const {
-    const Eigen::Vector3i c = Cell(p);
     float best = std::numeric_limits<float>::infinity();
-    for (int dx = -1; dx <= 1; ++dx) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dz = -1; dz <= 1; ++dz) {
-          auto it = ranges_.find(Key(c + Eigen::Vector3i(dx, dy, dz)));
-          if (it == ranges_.end()) continue;
-          for (size_t k = it->second.first; k < it->second.second; ++k) {
-            const cloud::CloudPoint& q = cloud_.points[order_[k]];
-            if (!other(q)) continue;
-            best = std::min(best, (q.position_in_table - p).squaredNorm());
-          }
-        }
-      }
-    }
+    index_.ForEachNear(p, [&](uint32_t i) {
+      const cloud::CloudPoint& q = cloud_.points[i];
+      if (other(q)) best = std::min(best, (q.position_in_table - p).squaredNorm());
+    });
     return std::sqrt(best);
+  }
+
+  // Calls f(index) for every point within one cell of p (and some farther).
+  template <typename F>
+  void ForEachIndexNear(const Eigen::Vector3f& p, F f) const {
+    index_.ForEachNear(p, f);
   }
 
   // Bit 0: a left-laser point within `radius` of p; bit 1: a right-laser point; bit 2: any point.
   int Near(const Eigen::Vector3f& p, double radius) const {
-    const Eigen::Vector3i c = Cell(p);
     const float r2 = static_cast<float>(radius * radius);
     int found = 0;
-    for (int dx = -1; dx <= 1; ++dx) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dz = -1; dz <= 1; ++dz) {
-          auto it = ranges_.find(Key(c + Eigen::Vector3i(dx, dy, dz)));
-          if (it == ranges_.end()) continue;
-          for (size_t k = it->second.first; k < it->second.second; ++k) {
-            const cloud::CloudPoint& q = cloud_.points[order_[k]];
-            if ((q.position_in_table - p).squaredNorm() > r2) continue;
-            found |= 4 | (q.laser == 0 ? 1 : q.laser == 1 ? 2 : 0);
-            if (found == 7) return found;
-          }
-        }
-      }
-    }
+    index_.ForEachNear(p, [&](uint32_t i) {
+      const cloud::CloudPoint& q = cloud_.points[i];
+      if ((q.position_in_table - p).squaredNorm() <= r2)
+        found |= 4 | (q.laser == 0 ? 1 : q.laser == 1 ? 2 : 0);
+      return found != 7;
+    });
     return found;
   }
 
  private:
-  Eigen::Vector3i Cell(const Eigen::Vector3f& p) const {
-    return Eigen::Vector3i(static_cast<int>(std::floor(p.x() * inv_cell_)),
-                           static_cast<int>(std::floor(p.y() * inv_cell_)),
-                           static_cast<int>(std::floor(p.z() * inv_cell_)));
-  }
-  static uint64_t Key(const Eigen::Vector3i& c) {
-    // 21 bits per axis (cells of >= 0.05 mm over ±50 m).
-    auto part = [](int v) { return static_cast<uint64_t>(v + (1 << 20)) & ((uint64_t{1} << 21) - 1); };
-    return part(c.x()) | (part(c.y()) << 21) | (part(c.z()) << 42);
+  static std::vector<uint32_t> AllPoints(const cloud::PointCloud& cloud) {
+    std::vector<uint32_t> all(cloud.size());
+    std::iota(all.begin(), all.end(), uint32_t{0});
+    return all;
   }
 
   const cloud::PointCloud& cloud_;
-  double inv_cell_;
-  std::vector<uint32_t> order_;
-  std::unordered_map<uint64_t, std::pair<size_t, size_t>> ranges_;
+  cloud::internal::CellIndex index_;
 };
 
 Eigen::Vector3f InterpolatedColor(const bundle::TruthMesh& mesh, const Closest& c) {
@@ -399,6 +372,31 @@ double LineSpacingP95(const cloud::PointCloud& all) {
     widest = std::max(widest, static_cast<double>(gaps[at]));
   }
   return widest;
+}
+
+// The coverage radius: given, or from the scan's own line spacing, or from the table step (evaluate.h).
+void AutomaticRadius(const cloud::PointCloud& cloud, const bundle::TruthMesh& mesh,
+                     const EvaluationViews& views, const EvaluateOptions& options, CoverageStats* cov) {
+  cov->radius_mm = options.coverage_radius_mm;
+  cov->radius_rule = "given";
+  if (cov->radius_mm > 0) return;
+  cov->line_spacing_p95_mm = LineSpacingP95(cloud);
+  if (cov->line_spacing_p95_mm > 0) {
+    cov->radius_mm = std::max(0.5, 0.6 * cov->line_spacing_p95_mm);
+    char rule[160];
+    std::snprintf(rule, sizeof(rule),
+                  "the scan's point spacing: 0.6 x %.3f mm (95th percentile of the gap "
+                  "between laser lines), at least 0.5 mm",
+                  cov->line_spacing_p95_mm);
+    cov->radius_rule = rule;
+  } else {
+    double r_max = 0;
+    for (const Eigen::Vector3f& v : mesh.vertices)
+      r_max = std::max(r_max, std::hypot(static_cast<double>(v.x()), static_cast<double>(v.y())));
+    cov->radius_mm = std::max(0.5, 0.6 * r_max * views.step_rad);
+    cov->radius_rule =
+        "the table step: 0.6 x the largest radius x the step, at least 0.5 mm (no line spacing)";
+  }
 }
 
 Result<EvaluationReport> EvaluateCloud(const cloud::PointCloud& cloud, const TruthSurface& truth,
@@ -508,27 +506,7 @@ Result<EvaluationReport> EvaluateCloud(const cloud::PointCloud& cloud, const Tru
   Occluder occluder;
   ROTOSCAN_RETURN_IF_ERROR(occluder.Build(mesh));
   ROTOSCAN_RETURN_IF_ERROR(MarkVisible(occluder, views, options, samples, progress));
-  cov.radius_mm = options.coverage_radius_mm;
-  cov.radius_rule = "given";
-  if (cov.radius_mm == 0) {
-    cov.line_spacing_p95_mm = LineSpacingP95(cloud);
-    if (cov.line_spacing_p95_mm > 0) {
-      cov.radius_mm = std::max(0.5, 0.6 * cov.line_spacing_p95_mm);
-      char rule[160];
-      std::snprintf(rule, sizeof(rule),
-                    "the scan's point spacing: 0.6 x %.3f mm (95th percentile of the gap "
-                    "between laser lines), at least 0.5 mm",
-                    cov.line_spacing_p95_mm);
-      cov.radius_rule = rule;
-    } else {
-      double r_max = 0;
-      for (const Eigen::Vector3f& v : mesh.vertices)
-        r_max = std::max(r_max, std::hypot(static_cast<double>(v.x()), static_cast<double>(v.y())));
-      cov.radius_mm = std::max(0.5, 0.6 * r_max * views.step_rad);
-      cov.radius_rule =
-          "the table step: 0.6 x the largest radius x the step, at least 0.5 mm (no line spacing)";
-    }
-  }
+  AutomaticRadius(cloud, mesh, views, options, &cov);
   {
     ProgressScope scope(progress, "coverage", samples.size());
     const PointGrid grid(cloud, cov.radius_mm);
@@ -810,6 +788,358 @@ std::string EvaluationSummary(const EvaluationReport& r) {
                   "%.4f of the visible area (%.1f mm^2) is farther than %.2f mm from the mesh\n",
                   m.visible_samples, m.visible_area_mm2, m.distance.median_mm, m.distance.p95_mm, m.distance.max_mm,
                   m.hole_fraction, m.hole_area_mm2, m.radius_mm);
+    out += line;
+  }
+  return out;
+}
+
+// ---- Reach: where coverage is lost (evaluate.h, EvaluateReach) ----
+
+Result<ScanRig> LoadScanRig(const std::filesystem::path& bundle_dir,
+                            const std::filesystem::path& scene_path) {
+  if (scene_path.empty()) return InvalidArgumentError("the rig's reach needs the scene (--scene)");
+  ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene scene, sim::LoadScene(scene_path));
+  int placement = 0;
+  if (auto header = bundle::ReadBundle(bundle_dir, {false}); header.ok())
+    placement = header->header.placement;
+  Eigen::Isometry3d truth_from_reference;
+  ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene placed, sim::PlaceScene(scene, placement, &truth_from_reference));
+  (void)placed;
+  ScanRig rig;
+  rig.rig = scene.rig;
+  for (int l = 0; l < 2; ++l) rig.laser_origin_in_cam[l] = scene.laser[l].origin_in_cam;
+  const int count = scene.placements.empty() ? 1 : static_cast<int>(scene.placements.size());
+  for (int k = 0; k < count; ++k) {
+    Eigen::Isometry3d table_from_reference;
+    ROTOSCAN_ASSIGN_OR_RETURN(sim::Scene other, sim::PlaceScene(scene, k, &table_from_reference));
+    (void)other;
+    rig.placement_rotation.push_back(table_from_reference.linear() *
+                                     truth_from_reference.linear().transpose());
+  }
+  return rig;
+}
+
+namespace {
+
+// The pose that turns the truth frame by `rotation`, then stands the mesh on the table centred on the axis
+// (sim::PlaceScene's rule).
+Eigen::Isometry3d StandOnTable(const bundle::TruthMesh& mesh, const Eigen::Matrix3d& rotation) {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const Eigen::Vector3f& v : mesh.vertices) {
+    const Eigen::Vector3d q = rotation * v.cast<double>();
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  pose.linear() = rotation;
+  pose.translation() = Eigen::Vector3d(-(lo.x() + hi.x()) / 2, -(lo.y() + hi.y()) / 2, -lo.z());
+  return pose;
+}
+
+// A rotation taking `up` (unit, truth frame) to the table's +z.
+Eigen::Matrix3d RotationUp(const Eigen::Vector3d& up) {
+  return Eigen::Quaterniond::FromTwoVectors(up, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+}
+
+// Directions spread evenly over the sphere (Fibonacci lattice), the first one +z.
+std::vector<Eigen::Vector3d> SphereDirections(int n) {
+  std::vector<Eigen::Vector3d> out;
+  const double golden = 3.14159265358979323846 * (3.0 - std::sqrt(5.0));
+  for (int i = 0; i < n; ++i) {
+    const double z = 1.0 - 2.0 * i / std::max(1, n - 1);
+    const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
+    out.emplace_back(r * std::cos(golden * i), r * std::sin(golden * i), z);
+  }
+  return out;
+}
+
+// Whether the rig can scan truth-frame point p with the object in `pose` (evaluate.h, ScanRig).
+bool Scannable(const Occluder& occluder, const ScanRig& s,
+               const std::array<Eigen::Isometry3d, 3>& cam_from_table, const Eigen::Isometry3d& pose,
+               double clearance_mm, double min_cos, const Sample& sample) {
+  const Eigen::Vector3f& p = sample.point;
+  const Eigen::Vector3d q = pose * p.cast<double>();
+  const Eigen::Vector3d normal = pose.linear() * sample.normal.cast<double>();
+  if (q.z() < clearance_mm) return false;
+  const geometry::Rig& rig = s.rig;
+  const Eigen::Matrix3d back = pose.linear().transpose();  // table -> truth directions
+  for (int l = 0; l < 2; ++l) {
+    const geometry::Plane& plane = rig.laser_plane[l];
+    // The plane's signed distance of q seen at table angle t is A cos t + B sin t + C.
+    // (cam_from_table: at 0, 90 and 180 degrees.)
+    const double f0 = plane.SignedDistance(cam_from_table[0] * q),
+                 f90 = plane.SignedDistance(cam_from_table[1] * q),
+                 f180 = plane.SignedDistance(cam_from_table[2] * q);
+    const double a = 0.5 * (f0 - f180), c = 0.5 * (f0 + f180), b = f90 - c;
+    const double r = std::hypot(a, b);
+    if (r < 1e-9 || std::abs(c) > r) continue;
+    const double phi = std::atan2(b, a), half = std::acos(std::clamp(-c / r, -1.0, 1.0));
+    for (double t : {phi + half, phi - half}) {
+      const Eigen::Isometry3d world_from_cam = rig.WorldFromCamAtAngle(t);
+      const Eigen::Vector3d in_cam = world_from_cam.inverse() * q;
+      if (in_cam.z() <= 0 || !rig.camera.IsInside(rig.camera.Project(in_cam))) continue;
+      const Eigen::Vector3d to_camera = (world_from_cam.translation() - q).normalized();
+      const Eigen::Vector3d to_laser = (world_from_cam * s.laser_origin_in_cam[l] - q).normalized();
+      if (normal.dot(to_camera) < min_cos || normal.dot(to_laser) < min_cos) continue;
+      if (occluder.Occluded(p, (back * to_camera).cast<float>(), 1e-3f)) continue;
+      if (occluder.Occluded(p, (back * to_laser).cast<float>(), 1e-3f)) continue;
+      return true;
+    }
+  }
+  return false;
+}
+
+// One bit per sample: scannable in `pose`.
+std::vector<uint64_t> ScannableBits(const Occluder& occluder, const ScanRig& s, const Eigen::Isometry3d& pose,
+                                    double clearance_mm, double max_incidence_deg,
+                                    const std::vector<Sample>& samples, int threads) {
+  const double min_cos = std::cos(max_incidence_deg * 3.14159265358979323846 / 180.0);
+  const double pi = 3.14159265358979323846;
+  const std::array<Eigen::Isometry3d, 3> cam_from_table = {s.rig.WorldFromCamAtAngle(0).inverse(),
+                                                           s.rig.WorldFromCamAtAngle(pi / 2).inverse(),
+                                                           s.rig.WorldFromCamAtAngle(pi).inverse()};
+  std::vector<uint64_t> bits((samples.size() + 63) / 64, 0);
+  const size_t words = bits.size();
+  ParallelFor(words, threads, [&](size_t begin, size_t end) {
+    for (size_t w = begin; w < end; ++w) {
+      uint64_t word = 0;
+      for (size_t i = 64 * w; i < std::min(samples.size(), 64 * w + 64); ++i) {
+        if (Scannable(occluder, s, cam_from_table, pose, clearance_mm, min_cos, samples[i]))
+          word |= uint64_t{1} << (i % 64);
+      }
+      bits[w] = word;
+    }
+  });
+  return bits;
+}
+
+size_t CountUnion(const std::vector<uint64_t>& a, const std::vector<uint64_t>& b) {
+  size_t n = 0;
+  for (size_t w = 0; w < a.size(); ++w) n += static_cast<size_t>(__builtin_popcountll(a[w] | b[w]));
+  return n;
+}
+
+bool Bit(const std::vector<uint64_t>& bits, size_t i) {
+  return ((bits[i / 64] >> (i % 64)) & 1) != 0;
+}
+
+}  // namespace
+
+Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSurface& truth,
+                                  const EvaluationViews& views, const ScanRig& rig,
+                                  const EvaluateOptions& options, const ReachOptions& reach,
+                                  Progress* progress) {
+  ROTOSCAN_RETURN_IF_ERROR(options.Check());
+  const bundle::TruthMesh& mesh = truth.mesh;
+  if (cloud.empty()) return InvalidArgumentError("the cloud has no points");
+  if (mesh.faces.empty()) return InvalidArgumentError("the true mesh has no faces");
+  if (reach.orientations < 0 || reach.orientations > 100000)
+    return InvalidArgumentError("reach orientations must be in [0, 100000]");
+  if (!(reach.max_incidence_deg > 0 && reach.max_incidence_deg <= 90))
+    return InvalidArgumentError("reach max incidence must be in (0, 90] degrees");
+  if (!(reach.search_spacing_mm >= options.sample_spacing_mm) || !(reach.region_link_mm > 0))
+    return InvalidArgumentError("reach search spacing must be >= the sample spacing, the region link > 0");
+  ROTOSCAN_RETURN_IF_ERROR(rig.rig.Validate());
+  const int threads = ThreadCount(options.threads);
+  ReachReport report;
+  std::vector<bool> present(256, false);
+  for (const cloud::CloudPoint& p : cloud.points) present[p.placement] = true;
+  for (int k = 0; k < 256; ++k) {
+    if (!present[static_cast<size_t>(k)]) continue;
+    if (static_cast<size_t>(k) >= rig.placement_rotation.size())
+      return InvalidArgumentError("the cloud has points of placement " + std::to_string(k) +
+                                  ", which the scene does not define");
+    report.placements.push_back(k);
+  }
+  Occluder occluder;
+  ROTOSCAN_RETURN_IF_ERROR(occluder.Build(mesh));
+  CoverageStats cov;
+  AutomaticRadius(cloud, mesh, views, options, &cov);
+  report.radius_mm = cov.radius_mm;
+
+  // The search: every pose at the coarse spacing.
+  EvaluateOptions coarse = options;
+  coarse.sample_spacing_mm = reach.search_spacing_mm;
+  size_t unused = 0;
+  double area_per_sample = 0;
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<Sample> few, SampleSurface(mesh, coarse, &unused, &area_per_sample));
+  std::vector<Eigen::Vector3d> ups = SphereDirections(reach.orientations);
+  std::vector<Eigen::Vector3d> given_ups;
+  for (int k : report.placements)
+    given_ups.push_back(rig.placement_rotation[static_cast<size_t>(k)].transpose() *
+                        Eigen::Vector3d::UnitZ());
+  std::vector<std::vector<uint64_t>> bits;
+  {
+    ProgressScope scope(progress, "reach: poses", ups.size() + given_ups.size());
+    for (const Eigen::Vector3d& up : given_ups) {
+      bits.push_back(ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)),
+                                   options.table_clearance_mm, reach.max_incidence_deg, few, threads));
+      scope.Advance();
+    }
+    for (const Eigen::Vector3d& up : ups) {
+      if (scope.Cancelled()) return CancelledError("evaluation cancelled");
+      bits.push_back(ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)),
+                                   options.table_clearance_mm, reach.max_incidence_deg, few, threads));
+      scope.Advance();
+    }
+  }
+  std::vector<Eigen::Vector3d> all_ups = given_ups;
+  all_ups.insert(all_ups.end(), ups.begin(), ups.end());
+  size_t best_second = 0, best_a = 0, best_b = 0, best_pair = 0;
+  for (size_t j = 0; j < all_ups.size(); ++j) {
+    const size_t n = CountUnion(bits[0], bits[j]);
+    if (n > best_second) best_second = n, report.best_second_up = all_ups[j];
+    for (size_t i = 0; i <= j; ++i) {
+      const size_t m = CountUnion(bits[i], bits[j]);
+      if (m > best_pair) best_pair = m, best_a = i, best_b = j;
+    }
+  }
+  report.best_pair_up[0] = all_ups[best_a];
+  report.best_pair_up[1] = all_ups[best_b];
+  std::vector<uint64_t> any(bits[0].size(), 0);
+  for (const auto& b : bits)
+    for (size_t w = 0; w < any.size(); ++w) any[w] |= b[w];
+
+  // The figures at full resolution: the given placements, the best poses, coverage by class.
+  ROTOSCAN_ASSIGN_OR_RETURN(std::vector<Sample> samples,
+                            SampleSurface(mesh, options, &unused, &area_per_sample));
+  report.samples = samples.size();
+  report.area_mm2 = static_cast<double>(samples.size()) * area_per_sample;
+  if (samples.empty()) return report;
+  const double n = static_cast<double>(samples.size());
+  auto bits_at = [&](const Eigen::Vector3d& up) {
+    return ScannableBits(occluder, rig, StandOnTable(mesh, RotationUp(up)), options.table_clearance_mm,
+                         reach.max_incidence_deg, samples, threads);
+  };
+  std::vector<uint64_t> given(((samples.size() + 63) / 64), 0);
+  std::vector<uint64_t> first;
+  for (size_t k = 0; k < given_ups.size(); ++k) {
+    std::vector<uint64_t> b = bits_at(given_ups[k]);
+    if (k == 0) first = b;
+    report.scannable_placement.push_back(static_cast<double>(CountUnion(b, b)) / n);
+    for (size_t w = 0; w < given.size(); ++w) given[w] |= b[w];
+  }
+  report.best_second = static_cast<double>(CountUnion(first, bits_at(report.best_second_up))) / n;
+  report.best_pair =
+      static_cast<double>(CountUnion(bits_at(report.best_pair_up[0]), bits_at(report.best_pair_up[1]))) / n;
+  // "Some pose" at full resolution: scannable in a given placement, or in a pose that scans that area at the
+  // search's resolution (the nearest coarse sample).
+  const PointGrid grid(cloud, cov.radius_mm);
+  cloud::PointCloud coarse_cloud;
+  for (const Sample& f : few) {
+    cloud::CloudPoint p;
+    p.position_in_table = f.point;
+    coarse_cloud.points.push_back(p);
+  }
+  const double link = 2.0 * reach.search_spacing_mm;
+  const PointGrid coarse_grid(coarse_cloud, link);
+  size_t covered = 0, scannable = 0, covered_scannable = 0, covered_not = 0, scannable_any = 0;
+  cloud::PointCloud lost;
+  for (size_t i = 0; i < samples.size(); ++i) {
+    const bool is_covered = (grid.Near(samples[i].point, cov.radius_mm) & 4) != 0;
+    const bool in_given = Bit(given, i);
+    // The nearest coarse sample decides "some pose" (within the link; none: not scannable).
+    size_t nearest = few.size();
+    float best = std::numeric_limits<float>::infinity();
+    coarse_grid.ForEachIndexNear(samples[i].point, [&](uint32_t j) {
+      const float d = (few[j].point - samples[i].point).squaredNorm();
+      if (d < best) best = d, nearest = j;
+    });
+    const bool in_any = in_given || (nearest < few.size() && Bit(any, nearest));
+    covered += is_covered;
+    scannable += in_given;
+    covered_scannable += is_covered && in_given;
+    covered_not += is_covered && !in_given;
+    scannable_any += in_any;
+    if (is_covered) continue;
+    report.uncovered.push_back(samples[i].point);
+    report.uncovered_normal.push_back(samples[i].normal);
+    report.uncovered_class.push_back(in_given ? 0 : in_any ? 1 : 2);
+    cloud::CloudPoint p;
+    p.position_in_table = samples[i].point;
+    lost.points.push_back(p);
+  }
+  report.covered = static_cast<double>(covered) / n;
+  report.scannable_given = static_cast<double>(scannable) / n;
+  report.covered_of_scannable_given = scannable > 0 ? static_cast<double>(covered_scannable) / scannable : 0;
+  report.covered_not_scannable = static_cast<double>(covered_not) / n;
+  report.scannable_any = static_cast<double>(scannable_any) / n;
+
+  // Regions: uncovered samples linked within region_link_mm (union-find).
+  std::vector<uint32_t> parent(lost.size());
+  std::iota(parent.begin(), parent.end(), uint32_t{0});
+  auto root = [&](uint32_t i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  };
+  const PointGrid lost_grid(lost, reach.region_link_mm);
+  const float link2 = static_cast<float>(reach.region_link_mm * reach.region_link_mm);
+  for (uint32_t i = 0; i < lost.size(); ++i) {
+    lost_grid.ForEachIndexNear(lost.points[i].position_in_table, [&](uint32_t j) {
+      if (j <= i) return;
+      if ((lost.points[i].position_in_table - lost.points[j].position_in_table).squaredNorm() > link2) return;
+      parent[root(j)] = root(i);
+    });
+  }
+  std::unordered_map<uint32_t, UncoveredRegion> by_root;
+  std::unordered_map<uint32_t, size_t> counts;
+  for (uint32_t i = 0; i < lost.size(); ++i) {
+    const uint32_t r = root(i);
+    UncoveredRegion& g = by_root[r];
+    const Eigen::Vector3d p = lost.points[i].position_in_table.cast<double>();
+    if (counts[r]++ == 0) g.lo = g.hi = p;
+    g.lo = g.lo.cwiseMin(p);
+    g.hi = g.hi.cwiseMax(p);
+    g.centroid += p;
+    g.scannable_given += report.uncovered_class[i] == 0;
+    g.scannable_any += report.uncovered_class[i] <= 1;
+  }
+  for (auto& [r, g] : by_root) {
+    const double c = static_cast<double>(counts[r]);
+    g.centroid /= c;
+    g.scannable_given /= c;
+    g.scannable_any /= c;
+    g.area_mm2 = c * area_per_sample;
+    report.regions.push_back(g);
+  }
+  std::sort(report.regions.begin(), report.regions.end(),
+            [](const UncoveredRegion& a, const UncoveredRegion& b) { return a.area_mm2 > b.area_mm2; });
+  if (report.regions.size() > reach.max_regions) report.regions.resize(reach.max_regions);
+  return report;
+}
+
+std::string ReachSummary(const ReachReport& r) {
+  std::string out;
+  char line[400];
+  std::snprintf(
+      line, sizeof(line),
+      "reach (%zu samples, %.0f mm^2, radius %.2f mm): covered %.4f; scannable in the cloud's placements "
+      "%.4f (covered %.4f of it; covered but not scannable %.4f); scannable in some pose %.4f\n",
+      r.samples, r.area_mm2, r.radius_mm, r.covered, r.scannable_given, r.covered_of_scannable_given,
+      r.covered_not_scannable, r.scannable_any);
+  out += line;
+  for (size_t k = 0; k < r.placements.size(); ++k) {
+    std::snprintf(line, sizeof(line), "reach: placement %d alone: scannable %.4f\n", r.placements[k],
+                  r.scannable_placement[k]);
+    out += line;
+  }
+  std::snprintf(
+      line, sizeof(line),
+      "reach: best second pose after placement %d: up (%.3f %.3f %.3f) of the truth frame, scannable "
+      "%.4f; best pair of poses: up (%.3f %.3f %.3f) and (%.3f %.3f %.3f), scannable %.4f\n",
+      r.placements.empty() ? 0 : r.placements[0], r.best_second_up.x(), r.best_second_up.y(),
+      r.best_second_up.z(), r.best_second, r.best_pair_up[0].x(), r.best_pair_up[0].y(),
+      r.best_pair_up[0].z(), r.best_pair_up[1].x(), r.best_pair_up[1].y(), r.best_pair_up[1].z(),
+      r.best_pair);
+  out += line;
+  for (const UncoveredRegion& g : r.regions) {
+    std::snprintf(
+        line, sizeof(line),
+        "uncovered region: %.1f mm^2 (%.2f %% of the surface) around (%.1f %.1f %.1f) mm, box (%.1f "
+        "%.1f %.1f)-(%.1f %.1f %.1f): scannable in the cloud's placements %.2f, in some pose %.2f\n",
+        g.area_mm2, 100.0 * g.area_mm2 / std::max(1e-9, r.area_mm2), g.centroid.x(), g.centroid.y(),
+        g.centroid.z(), g.lo.x(), g.lo.y(), g.lo.z(), g.hi.x(), g.hi.y(), g.hi.z(), g.scannable_given,
+        g.scannable_any);
     out += line;
   }
   return out;

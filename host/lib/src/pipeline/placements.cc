@@ -311,8 +311,21 @@ Result<MergePlacementsResult> MergePlacements(const std::vector<cloud::PointClou
     }
     result.placements.push_back(report);
   }
-  // The camera path differs per placement: not one ScanGeometry.
+  // Each placement's camera path, moved into the merged frame by its alignment (when every cloud is one
+  // scan that knows its path): the sensor rays of meshing (mesh --watertight).
   merged.scan = cloud::ScanGeometry{};
+  bool paths = true;
+  for (const cloud::PointCloud& c : clouds) paths = paths && c.scan.known && c.scan.placements.empty();
+  if (paths) {
+    merged.scan = clouds[0].scan;
+    for (size_t k = 0; k < clouds.size(); ++k) {
+      cloud::ScanGeometry::Placement p;
+      p.camera_at_step0 = clouds[k].scan.camera_at_step0;
+      p.step_rad = clouds[k].scan.step_rad;
+      if (k > 0) p.merged_from_table = result.placements[k].alignment.target_from_source;
+      merged.scan.placements.push_back(p);
+    }
+  }
   for (PlacementReport& report : result.placements) {
     std::vector<uint32_t> mine, others;
     for (size_t i = 0; i < merged.size(); ++i) {

@@ -2,8 +2,12 @@
 // PLY, one vertex per point with x y z (float, mm, table frame), nx ny nz (float, unit, zero when
 // unknown), red green blue (uchar), laser (uchar: 0 left, 1 right), step (int: table step index) and
 // quality (float, 0..1), and in merged clouds of several placements (pipeline/placements.h) placement
-// (uchar: the index of the scan the point came from; absent means 0). Two optional header comments say where the camera was (ScanGeometry):
-// `comment rotoscan camera_at_step0 X Y Z` (mm, table frame) and `comment rotoscan step_deg S`.
+// (uchar: the index of the scan the point came from; absent means 0). Two optional header comments say where
+// the camera was (ScanGeometry): `comment rotoscan camera_at_step0 X Y Z` (mm, table frame) and `comment
+// rotoscan step_deg S`; a merged cloud adds one per placement: `comment rotoscan placement K camera_at_step0
+// X Y Z step_deg S merged_from_table M00 M01 M02 M03 M10 ... M23` (its camera path in its own table frame and
+// its pose in the merged frame, the top 3 x 4 of the matrix row by row). A malformed camera comment is
+// ignored (no path).
 //
 // The reader is hardened (STYLE.md §9): every count read from the file is bounded by the bytes that are
 // really there before anything is allocated, a truncated or malformed file is kCorruptData naming the
@@ -17,6 +21,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "rotoscan/core/status.h"
 
@@ -40,6 +45,18 @@ struct ScanGeometry {
   Eigen::Vector3d camera_at_step0 = Eigen::Vector3d::Zero();  // mm, table frame
   double step_rad = 0.0;                                      // signed turn per step index
   Eigen::Vector3d CameraAtStep(int step) const;
+  // A merged cloud of several placements (pipeline/placements.h), indexed by CloudPoint::placement: each
+  // scan's camera path in its own table frame and where that frame lies in the merged one (placement 0's
+  // is the identity, and camera_at_step0 / step_rad above are its own). Empty for one scan.
+  struct Placement {
+    Eigen::Vector3d camera_at_step0 = Eigen::Vector3d::Zero();
+    double step_rad = 0.0;
+    Eigen::Isometry3d merged_from_table = Eigen::Isometry3d::Identity();
+  };
+  std::vector<Placement> placements;
+  // The camera of a point of `placement` seen at table step `step`, in the cloud's frame (CameraAtStep when
+  // the cloud has no placements or not that one).
+  Eigen::Vector3d CameraAt(int placement, int step) const;
 };
 
 struct PointCloud {

@@ -50,6 +50,7 @@
 #include "rotoscan/core/progress.h"
 #include "rotoscan/core/status.h"
 #include "rotoscan/geometry/camera.h"
+#include "rotoscan/geometry/rig.h"
 
 namespace rotoscan::pipeline {
 
@@ -157,6 +158,79 @@ Result<TruthSurface> LoadTruthSurface(const std::filesystem::path& bundle_dir,
                                       const std::filesystem::path& scene_path = {});
 // The views of a bundle: truth/rig.yaml and the distinct table angles of its frames.
 Result<EvaluationViews> LoadEvaluationViews(const std::filesystem::path& bundle_dir);
+
+// Where coverage is lost, and what any placement could gain (EvaluateReach). A point of the surface is
+// scannable in a pose of the object when, at the table angle where a laser's plane crosses it (solved
+// exactly, not only at the scan's steps), the camera sees it (inside the image, nothing of the object on the
+// ray to the camera centre) and that laser lights it (nothing on the ray to the laser's origin), and it is
+// higher than the table clearance in that pose. This ignores what the extraction loses (grazing incidence,
+// dark albedo) and the step sampling, so it is an upper bound of what a scan in that pose covers. A pose is
+// an orientation of the object stood on the table and centred on the axis as sim::PlaceScene does; a turn
+// about the table axis changes nothing over a whole turn, so the orientations tried are the directions of
+// the object that point up (a Fibonacci sphere).
+struct ScanRig {
+  geometry::Rig rig;                       // the true rig
+  Eigen::Vector3d laser_origin_in_cam[2];  // the lasers' origins (scene "lasers.*.origin_mm")
+  // Each placement's rotation from the truth mesh's frame (the bundle's placement) to that placement's
+  // (indexed by the scene's placement index).
+  std::vector<Eigen::Matrix3d> placement_rotation;
+};
+
+struct ReachOptions {
+  int orientations = 200;           // up directions tried for the best pair (0: no search)
+  double search_spacing_mm = 0.75;  // the surface sample spacing of the search (the final figures: 0.25 mm)
+  double region_link_mm = 1.0;      // uncovered samples this close are one region
+  // The largest angle between the surface's normal and the rays to the camera and to the laser (90: the
+  // geometric bound; a line at grazing incidence is too faint and wide to extract).
+  double max_incidence_deg = 90.0;
+  size_t max_regions = 12;  // the largest regions reported
+};
+
+struct UncoveredRegion {
+  double area_mm2 = 0;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Zero(),
+                  hi = Eigen::Vector3d::Zero();
+  double scannable_given = 0;  // share of its area scannable in one of the cloud's placements
+  double scannable_any = 0;    // share scannable in some pose
+};
+
+struct ReachReport {
+  double radius_mm = 0;  // the coverage radius (as EvaluateCloud's)
+  size_t samples = 0;    // of the whole surface above the table clearance
+  double area_mm2 = 0;
+  std::vector<int> placements;              // the cloud's placements
+  std::vector<double> scannable_placement;  // fraction of the whole surface scannable in each
+  double covered = 0;                       // EvaluateCloud's coverage.whole
+  double scannable_given = 0;               // in one of the cloud's placements at least
+  double covered_of_scannable_given = 0;    // coverage of that part
+  double covered_not_scannable = 0;         // covered but scannable in none of them (a check: near 0)
+  double scannable_any = 0;                 // in one of the poses tried or the placements' (upper bound)
+  // The best second pose for the cloud's first placement, and the best pair of any poses (up directions in
+  // the truth frame) with their scannable fractions (search resolution, then at full resolution).
+  Eigen::Vector3d best_second_up = Eigen::Vector3d::UnitZ();
+  double best_second = 0;
+  Eigen::Vector3d best_pair_up[2] = {Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ()};
+  double best_pair = 0;
+  std::vector<UncoveredRegion> regions;  // largest first
+  // Every uncovered sample: position (truth frame) and class: 0 scannable in a given placement (missed by
+  // the scan), 1 only in another pose, 2 in no pose tried (self-occluded).
+  std::vector<Eigen::Vector3f> uncovered;
+  std::vector<Eigen::Vector3f> uncovered_normal;  // the true surface's (its face's)
+  std::vector<uint8_t> uncovered_class;
+};
+
+// The scene's rig and placements for a bundle rendered from `scene_path` (the bundle's placement gives the
+// truth frame). kInvalidArgument / kNotFound as LoadTruthSurface.
+Result<ScanRig> LoadScanRig(const std::filesystem::path& bundle_dir, const std::filesystem::path& scene_path);
+
+// The whole surface's coverage by `cloud` split by reach (above). A point's `placement` k is taken as the
+// scene's placement k (rotoscan merge numbers the clouds in the order given: merge them in the scene's
+// order). kInvalidArgument for a cloud whose placements the rig does not have, and as EvaluateCloud.
+Result<ReachReport> EvaluateReach(const cloud::PointCloud& cloud, const TruthSurface& truth,
+                                  const EvaluationViews& views, const ScanRig& rig,
+                                  const EvaluateOptions& options = {}, const ReachOptions& reach = {},
+                                  Progress* progress = nullptr);
+std::string ReachSummary(const ReachReport& report);
 
 // The report as JSON (numbers in mm, fractions 0..1, colors in 8-bit levels) and as one line per metric.
 std::string EvaluationJson(const EvaluationReport& report);
