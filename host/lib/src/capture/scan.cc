@@ -25,7 +25,7 @@ uint8_t MaskOf(LaserState s) {
 std::vector<LaserState> Wanted(const ScanOptions& o, int step) {
   std::vector<LaserState> w;
   if (o.lasers) w = {LaserState::kLeft, LaserState::kRight, LaserState::kOff};
-  if (o.natural_every > 0 && step % o.natural_every == 0) w.push_back(LaserState::kNatural);
+  if (!o.shared_off && o.natural_every > 0 && step % o.natural_every == 0) w.push_back(LaserState::kNatural);
   return w;
 }
 
@@ -359,7 +359,7 @@ struct Pass {
 // steps (k > 1), the laser shots at every step and then the natural frames in a second program whose moves
 // are k steps long (a board program takes the same shots at each of its steps).
 std::vector<Pass> Passes(const ScanOptions& o) {
-  if (o.natural_every <= 1) return {{Wanted(o, 0), 1}};
+  if (o.natural_every <= 1 || o.shared_off) return {{Wanted(o, 0), 1}};
   std::vector<Pass> passes;
   if (o.lasers) passes.push_back({{LaserState::kLeft, LaserState::kRight, LaserState::kOff}, 1});
   passes.push_back({{LaserState::kNatural}, o.natural_every});
@@ -494,6 +494,11 @@ Status ScanOptions::Check() const {
   if (laser_exposure_us <= 0 || natural_exposure_us <= 0) return InvalidArgumentError("exposures must be positive");
   if (natural_every < 0) return InvalidArgumentError("natural_every must be >= 0");
   if (!lasers && natural_every == 0) return InvalidArgumentError("no frames to take (no lasers, no natural)");
+  if (shared_off && !lasers) return InvalidArgumentError("a shared off frame needs the lasers (a scan, not views)");
+  if (shared_off && natural_every > 1) {
+    return InvalidArgumentError("with a shared off frame every step's off frame is its color frame: "
+                                "a natural frame every k steps does not apply");
+  }
   if (match_tolerance_us <= 0 || frame_timeout_us <= 0 || max_retakes < 0) {
     return InvalidArgumentError("bad matching or timeout options");
   }
@@ -528,6 +533,11 @@ Result<ScanSummary> RunScan(Board& board, Camera& camera, Clock& clock, const st
   }
   summary.timing = timing;
   bundle::BundleHeader header = options.header;
+  if (options.shared_off) {
+    header.shared_off_frame = true;
+    header.format_version = std::max(header.format_version, 2);
+    header.camera.natural_exposure_us = static_cast<double>(options.laser_exposure_us);  // the color frame's
+  }
   const double step_deg = options.step_deg > 0 ? options.step_deg : 360.0 / options.steps;
   header.table_step_rad = step_deg * kPi / 180.0;
   bundle::BundleWriter::Options writer_options;
