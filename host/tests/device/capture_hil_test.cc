@@ -88,7 +88,7 @@ class CaptureHilTest : public ::testing::Test {
     usb_ = std::make_unique<MockUsbBoard>(&sim_, options);
     MockUsbBoard* usb = usb_.get();
     truth_ = std::make_unique<internal::SimRigTruth>(usb->device_zero_host_us(), 2.0 * M_PI / kStepsPerRev,
-                                                     [usb](const std::function<void()>& f) { usb->WithBoardLocked(f); });
+                                                     [usb](const std::function<void()>& f) { usb->WithBoardAtNow(f); });
   }
   void TearDown() override {
     if (replug_.joinable()) replug_.join();
@@ -289,10 +289,10 @@ TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndRes
   EXPECT_FALSE(fs::exists(dir_ / "b"));
   // The host could not reach the board: the board's laser safety turned the lasers off after its timeout
   // (MotionConfig::laser_timeout_ms, 2 s) of silence. Wait for it in real time, then look at the pins.
+  // The board's time is run up to the host's at each read of the truth (WithBoardAtNow), so one absolute
+  // wait for the host's time is the condition itself, however late the mock's clock thread runs.
   const int64_t timeout_us = device::MotionConfig{}.laser_timeout_ms * 1000LL;
-  while (MonotonicNowUs() < unplugged_at + timeout_us + 300'000) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
+  MakeRealClock()->WaitUntilUs(unplugged_at + timeout_us + 300'000);
   const int64_t now = MonotonicNowUs();
   EXPECT_FALSE(truth_->LaserAt(0, now));
   EXPECT_FALSE(truth_->LaserAt(1, now));
@@ -378,8 +378,8 @@ struct FakeFeed {
   static void Callback(ArvBuffer* buffer, void* data, guint32 exposure_time_us, guint32, ArvPixelFormat format) {
     auto* feed = static_cast<FakeFeed*>(data);
     const int64_t end = MonotonicNowUs();
-    // The simulated board runs in 100 us ticks: let its pin log reach `end` before reading it.
-    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    // The truth runs the simulated board up to the present before reading its pin log (WithBoardAtNow):
+    // complete up to `end` however late the mock's clock thread is.
     std::lock_guard<std::mutex> lock(feed->mutex);
     const auto& camera = feed->renderer->scene().rig.camera;
     size_t size = 0;

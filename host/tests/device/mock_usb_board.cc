@@ -459,6 +459,12 @@ void MockUsbBoard::WithBoardLocked(const std::function<void()>& f) {
   f();
 }
 
+void MockUsbBoard::WithBoardAtNow(const std::function<void()>& f) {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  if (impl_->options.real_time) impl_->CatchUp();
+  f();
+}
+
 void MockUsbBoard::PauseTime(bool paused) {
   impl_->paused = paused;
 }

@@ -63,6 +63,10 @@ class MockUsbBoard {
 
   // Runs `f` with the board's time stopped (for reading the simulator's state).
   void WithBoardLocked(const std::function<void()>& f);
+  // Options::real_time: runs the board up to the host's present time first (in the caller's thread), then
+  // `f` with its time stopped, so that what `f` reads of the board's past is complete up to now even when
+  // the clock thread lags on a loaded machine. Without real_time, as WithBoardLocked.
+  void WithBoardAtNow(const std::function<void()>& f);
   // Stops or restarts the board's clock (the ioctls are still served). No effect with Options::real_time.
   void PauseTime(bool paused);
   // Options::real_time: the host time (CLOCK_MONOTONIC, microseconds) at which the board's time was 0.

@@ -169,10 +169,14 @@ Status FreeRunning(Run& run) {
     if (c) settled = std::max(settled, c->latest_us);
   }
   std::optional<BoardChange> next;  // the change to shot i + 1, issued ahead
+  // After a wrong prediction for shot i, the change to shot i + 1 waits for shot i's frame instead: a
+  // prediction that keeps failing (a camera whose timestamps or exposure changes lag) must not make the
+  // scan go back and forth between two shots for ever.
+  bool predict = true;
   while (i < targets.size()) {
     ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
     const int64_t period = run.period_count > 0 ? std::llround(run.period_sum / run.period_count) : 0;
-    if (!next && i + 1 < targets.size() && period > 0 && run.last_frame_start) {
+    if (predict && !next && i + 1 < targets.size() && period > 0 && run.last_frame_start) {
       // The first frame starting after `settled` serves shot i; it ends at its start + readout + exposure.
       int64_t start = *run.last_frame_start;
       while (start - uncertainty <= settled) start += period;
@@ -194,6 +198,7 @@ Status FreeRunning(Run& run) {
     if (after && before && frame->exposure_us == ExposureOf(o, target.laser)) {
       ROTOSCAN_RETURN_IF_ERROR(run.Write(target.step, target.laser, *frame, 0, frame->device_time_us.value_or(0)));
       ++i;
+      predict = true;
       if (next) {
         settled = next->latest_us;
         next.reset();
@@ -205,10 +210,12 @@ Status FreeRunning(Run& run) {
     }
     ++run.summary.frames_rejected;
     if (next && frame->exposure_start_us + uncertainty >= next->earliest_us) {
-      // The change came too early for shot i's frame (a wrong prediction): go back to shot i.
+      // The change came too early for shot i's frame (a wrong prediction): go back to shot i, and take it
+      // without predicting.
       ROTOSCAN_ASSIGN_OR_RETURN(auto c, Apply(run, target.step, target.laser, &exposure));
       if (c) settled = std::max(settled, c->latest_us);
       next.reset();
+      predict = false;
     }
   }
   return run.camera.Stop();
