@@ -51,7 +51,7 @@ TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) {
   OpenContext context;
   context.scene_path = scene_path.string();
   context.truth = &truth;
-  context.options = {"rolling=1", "ok_timeout_ms=200"};
+  context.options = {"rolling=1", "ok_timeout_ms=2000"};  // no lost "ok" here: only a bound on a failure
   auto board = OpenBoard("ciclop:" + fake_options.link_path, &context);
   ASSERT_TRUE(board.ok()) << board.status().ToString();
   context.board = board.value().get();
