@@ -3,7 +3,10 @@
 // figures are on the scan's virtual clock, so they do not depend on the machine:
 //   virtual_s / frames_s   the scan's duration over the time of the frames it used (frames_used / 30)
 //   captured / used        frames the camera delivered vs frames written
+//   frames_per_step        4 (left, right, off, natural), or 3 with a shared off frame (*_shared_off)
 // Targets: hardware-triggered <= 1.05x, free-running <= 1.5x, for a 1,200-step scan (4 frames per step).
+// The *_shared_off runs take 3 frames per step (the off frame is also the color frame); compare their
+// virtual_s with the 4-frame run of the same mode.
 // Frames are rendered small (64x48): the renderer's speed is sim_bench's business.
 //   build/host/bench/capture/capture_bench                       (1,200 steps; ~1 min of wall time)
 //   build/host/bench/capture/capture_bench --benchmark_filter=/120   (a quicker look)
@@ -23,7 +26,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void BM_Scan(benchmark::State& state, Timing timing, bool rolling) {
+void BM_Scan(benchmark::State& state, Timing timing, bool rolling, bool shared_off = false) {
   const int steps = static_cast<int>(state.range(0));
   const fs::path dir = fs::temp_directory_path() / ("rotoscan_capture_bench_" + std::to_string(::getpid()));
   fs::create_directories(dir);
@@ -41,6 +44,7 @@ void BM_Scan(benchmark::State& state, Timing timing, bool rolling) {
     o.steps = steps;
     o.step_deg = 0.3;
     o.timing = timing;
+    o.shared_off = shared_off;
     o.header.created_by = "capture_bench";
     o.header.camera.model = sim::LoadScene(scene_path).value().rig.camera;
     fs::remove_all(dir / "b");
@@ -55,6 +59,7 @@ void BM_Scan(benchmark::State& state, Timing timing, bool rolling) {
     state.counters["ratio"] = static_cast<double>(s.elapsed_us) / static_cast<double>(s.frames_time_us);
     state.counters["captured"] = s.frames_captured;
     state.counters["used"] = s.frames_used;
+    state.counters["frames_per_step"] = static_cast<double>(s.frames_used) / steps;
   }
   fs::remove_all(dir);
 }
@@ -62,6 +67,8 @@ void BM_Scan(benchmark::State& state, Timing timing, bool rolling) {
 BENCHMARK_CAPTURE(BM_Scan, triggered, Timing::kTriggered, false)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
 BENCHMARK_CAPTURE(BM_Scan, free_running_rolling, Timing::kFreeRunning, true)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
 BENCHMARK_CAPTURE(BM_Scan, free_running_global, Timing::kFreeRunning, false)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
+BENCHMARK_CAPTURE(BM_Scan, triggered_shared_off, Timing::kTriggered, false, true)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
+BENCHMARK_CAPTURE(BM_Scan, free_running_rolling_shared_off, Timing::kFreeRunning, true, true)->Arg(120)->Arg(1200)->Iterations(1)->Unit(benchmark::kSecond);
 
 }  // namespace
 }  // namespace rotoscan::capture

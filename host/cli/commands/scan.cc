@@ -2,7 +2,7 @@
 // a scan (or calibration) bundle; with --live, extract and triangulate while scanning.
 //   rotoscan scan --device usb[:SERIAL]|sim|ciclop:/dev/ttyUSB0 --camera v4l2:/dev/video0|aravis[:ID]|virtual
 //                 --out BUNDLE [--calib calib.yaml] [--steps N] [--placement N] [--live [--cloud FILE]]
-//                 [--timing ...] ...
+//                 [--timing ...] [--shared-off] ...
 // rotoscan devices: the boards and cameras this build can open, and those it finds attached.
 #include <chrono>
 #include <condition_variable>
@@ -46,6 +46,7 @@ struct ScanCommandOptions {
   int target_cols = 9, target_rows = 6;
   double target_square_mm = 7.0;
   bool live = false;
+  bool shared_off = false;
   bool resume = false;
   bool overwrite = false;
 };
@@ -55,7 +56,7 @@ namespace {
 // Steps handed from the scan to the live processing as they are completed.
 class LiveSource : public pipeline::StepSource {
  public:
-  explicit LiveSource(int steps) : steps_(steps) {}
+  LiveSource(int steps, bool shared_off) : steps_(steps), shared_off_(shared_off) {}
   int StepCount() const override { return steps_; }
   Result<pipeline::StepFrames> Load(int index) const override {
     std::unique_lock<std::mutex> lock(mutex_);
@@ -85,7 +86,9 @@ class LiveSource : public pipeline::StepSource {
       std::lock_guard<std::mutex> lock(mutex_);
       auto it = pending_.find(step);
       if (it == pending_.end()) return;
-      if (it->second.natural.empty()) it->second.natural = last_natural_;  // natural every k steps
+      if (it->second.natural.empty()) {  // the off frame (shared off frame), or the last natural (every k steps)
+        it->second.natural = shared_off_ ? it->second.off : last_natural_;
+      }
       done_[step] = std::move(it->second);
       pending_.erase(it);
     }
@@ -101,6 +104,7 @@ class LiveSource : public pipeline::StepSource {
 
  private:
   int steps_;
+  bool shared_off_;
   mutable std::mutex mutex_;
   mutable std::condition_variable ready_;
   std::map<int, pipeline::StepFrames> pending_;
@@ -132,6 +136,9 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
   if (!timing.ok()) return ReportStatus(context, "scan", timing.status());
   auto target = TargetOf(o.kind);
   if (!target.ok()) return ReportStatus(context, "scan", target.status());
+  if (o.shared_off && *target != bundle::TargetKind::kNone) {
+    return ReportStatus(context, "scan", InvalidArgumentError("--shared-off is for scans, not calibration views"));
+  }
   if (o.live && o.calib.empty()) {
     return ReportStatus(context, "scan", InvalidArgumentError("--live needs --calib (the rig to triangulate with)"));
   }
@@ -158,6 +165,7 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
   options.laser_exposure_us = o.laser_exposure_us;
   options.natural_exposure_us = o.natural_exposure_us;
   options.natural_every = o.natural_every;
+  options.shared_off = o.shared_off;
   options.resume = o.resume;
   options.overwrite = o.overwrite;
   options.replay_resumed = o.live;  // --live --resume: the steps taken before the interruption, from disk
@@ -194,7 +202,7 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
   const bool check_board =
       *target == bundle::TargetKind::kCheckerboard || *target == bundle::TargetKind::kTableCheckerboard;
   std::unique_ptr<LiveSource> live;
-  if (o.live) live = std::make_unique<LiveSource>(o.steps);
+  if (o.live) live = std::make_unique<LiveSource>(o.steps, o.shared_off);
   options.on_frame = [&](const capture::CapturedFrame& c) -> Status {
     if (live) live->Add(c);
     if (check_board && c.laser == bundle::LaserState::kNatural) {
@@ -278,6 +286,9 @@ void RegisterScan(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--laser-exposure", o->laser_exposure_us, "left/right/off exposure, us")->capture_default_str()->check(CLI::Range(1, 10000000));
   sub->add_option("--natural-exposure", o->natural_exposure_us, "natural exposure, us")->capture_default_str()->check(CLI::Range(1, 10000000));
   sub->add_option("--natural-every", o->natural_every, "a natural frame every k steps (0: none)")->capture_default_str()->check(CLI::Range(0, 100000));
+  sub->add_flag("--shared-off", o->shared_off,
+                "3 frames per step: the off frame (laser exposure) is also the color frame, no natural frame "
+                "(recorded in the bundle; `process` needs no flag)");
   sub->add_option("--kind", o->kind, "scan, checkerboard, table-checkerboard or calib-object")->capture_default_str();
   sub->add_option("--target-cols", o->target_cols, "calibration board inner corners across")->check(CLI::Range(2, 100));
   sub->add_option("--target-rows", o->target_rows, "calibration board inner corners down")->check(CLI::Range(2, 100));

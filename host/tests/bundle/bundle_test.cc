@@ -473,6 +473,35 @@ TEST(BundleTest, PlacementRoundTripsAndDefaultsToZero) {
   EXPECT_EQ(ParseBundleJson(bad, "bad").status().code(), StatusCode::kCorruptData);
 }
 
+// A shared off frame (format_version 2): written and read back; a version-1 bundle (every bundle before
+// it) reads as before; the field in a version-1 file, and version 2's flag asked of a version-1 header,
+// are refused; a version above this build's is refused naming the field.
+TEST(BundleTest, SharedOffFrameNeedsVersionTwoAndRoundTrips) {
+  BundleHeader header = SmallHeader();
+  EXPECT_EQ(header.format_version, 1);
+  const std::string v1 = BundleJson(header, {});
+  EXPECT_EQ(v1.find("shared_off_frame"), std::string::npos);  // unchanged for bundles without it
+  auto parsed = ParseBundleJson(v1, "v1");
+  ASSERT_TRUE(parsed.ok()) << parsed.status().ToString();
+  EXPECT_FALSE(parsed->header.shared_off_frame);
+  header.shared_off_frame = true;
+  header.format_version = 2;
+  parsed = ParseBundleJson(BundleJson(header, {}), "v2");
+  ASSERT_TRUE(parsed.ok()) << parsed.status().ToString();
+  EXPECT_TRUE(parsed->header.shared_off_frame);
+  EXPECT_EQ(parsed->header.format_version, 2);
+  std::string bad = BundleJson(header, {});
+  bad.replace(bad.find("\"format_version\": 2"), 19, "\"format_version\": 1");
+  auto refused = ParseBundleJson(bad, "bad");
+  EXPECT_EQ(refused.status().code(), StatusCode::kCorruptData);
+  EXPECT_NE(refused.status().message().find("shared_off_frame"), std::string::npos) << refused.status().ToString();
+  bad.replace(bad.find("\"format_version\": 1"), 19, "\"format_version\": 3");
+  EXPECT_EQ(ParseBundleJson(bad, "bad").status().code(), StatusCode::kCorruptData);
+  ScratchDir scratch;
+  header.format_version = 1;
+  EXPECT_EQ(BundleWriter::Create(scratch / "b", header).status().code(), StatusCode::kInvalidArgument);
+}
+
 TEST(TruthTest, PlacementTruthRoundTrips) {
   ScratchDir scratch;
   PlacementTruth truth;

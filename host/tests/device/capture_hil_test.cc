@@ -48,6 +48,7 @@
 #include "rotoscan/capture/scan.h"
 #include "rotoscan/pipeline/process.h"
 #include "rotoscan/sim/scene.h"
+#include "fake_board.h"
 #include "sim_board.h"
 
 namespace rotoscan::capture {
@@ -65,6 +66,8 @@ const Eigen::Vector3d kCentre(12.0, 0.0, 20.0);  // off the axis: a frame at the
 // the frames of a real-time scan.
 constexpr double kRmsToleranceMm = 0.1;
 constexpr double kWorstToleranceMm = 1.0;
+// The firmware core's unique id ("ROTOSCANSIM1", firmware/port/sim) in hex: its USB serial number string.
+const char* const kSimSerial = "524F544F5343414E53494D31";
 
 class CaptureHilTest : public ::testing::Test {
  protected:
@@ -81,10 +84,11 @@ class CaptureHilTest : public ::testing::Test {
     MockUsbBoard::Options options;
     options.real_time = true;
     options.real_us_per_tick = 100;
+    options.serial = kSimSerial;
     usb_ = std::make_unique<MockUsbBoard>(&sim_, options);
     MockUsbBoard* usb = usb_.get();
     truth_ = std::make_unique<internal::SimRigTruth>(usb->device_zero_host_us(), 2.0 * M_PI / kStepsPerRev,
-                                                     [usb](const std::function<void()>& f) { usb->WithBoardLocked(f); });
+                                                     [usb](const std::function<void()>& f) { usb->WithBoardAtNow(f); });
   }
   void TearDown() override {
     if (replug_.joinable()) replug_.join();
@@ -97,12 +101,12 @@ class CaptureHilTest : public ::testing::Test {
     std::unique_ptr<Camera> camera;
     OpenContext context;
   };
-  Rig Open() {
+  Rig Open(const std::string& spec = "usb") {
     Rig rig;
     rig.context.scene_path = scene_path_.string();
     rig.context.truth = truth_.get();
     rig.context.options = {"steps_per_rev=" + std::to_string(kStepsPerRev), "reconnect_ms=1000"};
-    auto board = OpenBoard("usb", &rig.context);
+    auto board = OpenBoard(spec, &rig.context);
     EXPECT_TRUE(board.ok()) << board.status().ToString();
     if (!board.ok()) return rig;
     rig.board = std::move(board).value();
@@ -285,10 +289,10 @@ TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndRes
   EXPECT_FALSE(fs::exists(dir_ / "b"));
   // The host could not reach the board: the board's laser safety turned the lasers off after its timeout
   // (MotionConfig::laser_timeout_ms, 2 s) of silence. Wait for it in real time, then look at the pins.
+  // The board's time is run up to the host's at each read of the truth (WithBoardAtNow), so one absolute
+  // wait for the host's time is the condition itself, however late the mock's clock thread runs.
   const int64_t timeout_us = device::MotionConfig{}.laser_timeout_ms * 1000LL;
-  while (MonotonicNowUs() < unplugged_at + timeout_us + 300'000) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
+  MakeRealClock()->WaitUntilUs(unplugged_at + timeout_us + 300'000);
   const int64_t now = MonotonicNowUs();
   EXPECT_FALSE(truth_->LaserAt(0, now));
   EXPECT_FALSE(truth_->LaserAt(1, now));
@@ -311,6 +315,48 @@ TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndRes
 }
 
 
+// Two boards on the bus: the one scanning (the firmware core, opened as usb:SERIAL) is unplugged mid-scan
+// and re-plugged at a new address; the scan finds it again by its serial number, not at its old address,
+// and completes. The other board (a FakeBoard with the default description's serial) is never talked to.
+TEST_F(CaptureHilTest, TwoBoardsTheReplugedOneIsFoundAgainBySerial) {
+  device::testing::FakeBoard other;
+  MockUsbBoard::Options other_options;
+  other_options.port = 2;
+  other_options.address = 3;  // the address the scanning board's re-plug would take next: it must skip it
+  MockUsbBoard other_usb(&other, other_options);
+  Rig rig = Open(std::string("usb:") + kSimSerial);
+  ASSERT_NE(rig.camera, nullptr);
+  EXPECT_EQ(rig.board->info().serial, "524f544f5343414e53494d31");
+  const int address_before = usb_->address();
+  bool unplugged = false;
+  on_frame_ = [&](const CapturedFrame& c) {
+    if (c.step == 6 && !unplugged) {
+      unplugged = true;
+      usb_->Unplug();
+      replug_ = std::thread([this] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // within reconnect_ms and laser safety
+        usb_->Replug();
+      });
+    }
+  };
+  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
+  ASSERT_TRUE(summary.ok()) << summary.status().ToString();
+  std::printf("%s\n", summary.value().Summary().c_str());
+  EXPECT_EQ(summary.value().frames_used, kSteps * 4);
+  EXPECT_NE(usb_->address(), address_before);
+  EXPECT_NE(usb_->address(), other_usb.address());
+  auto* client_board = dynamic_cast<internal::ClientBoard*>(rig.board.get());
+  ASSERT_NE(client_board, nullptr);
+  EXPECT_EQ(client_board->client().stats().reconnects, 1);
+  size_t other_commands = 0;
+  other_usb.WithBoardLocked([&] { other_commands = other.received.size(); });
+  EXPECT_EQ(other_commands, 0u) << "the other board was talked to";
+  rig.board.reset();
+  EXPECT_FALSE(truth_->LaserAt(0, MonotonicNowUs()));
+  EXPECT_FALSE(truth_->LaserAt(1, MonotonicNowUs()));
+  CheckBundleAndCloud(dir_ / "b");
+}
+
 #ifdef ROTOSCAN_TEST_ARAVIS
 // Aravis's fake camera, fed with the virtual scanner's renders of what the simulated rig did during each
 // frame. The fake stamps a frame when it fills it (Aravis's system timestamp, which the backend takes as
@@ -332,8 +378,8 @@ struct FakeFeed {
   static void Callback(ArvBuffer* buffer, void* data, guint32 exposure_time_us, guint32, ArvPixelFormat format) {
     auto* feed = static_cast<FakeFeed*>(data);
     const int64_t end = MonotonicNowUs();
-    // The simulated board runs in 100 us ticks: let its pin log reach `end` before reading it.
-    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    // The truth runs the simulated board up to the present before reading its pin log (WithBoardAtNow):
+    // complete up to `end` however late the mock's clock thread is.
     std::lock_guard<std::mutex> lock(feed->mutex);
     const auto& camera = feed->renderer->scene().rig.camera;
     size_t size = 0;

@@ -32,7 +32,7 @@ class CiclopBoardTest : public ::testing::Test {
     options.link_path = dir_ + "/ttyUSB0";
     fake_ = std::make_unique<FakeCiclop>(options);
     ASSERT_TRUE(fake_->Start()) << fake_->error();
-    context_.options = {"ok_timeout_ms=100", "reconnect_ms=300"};
+    context_.options = {"ok_timeout_ms=1000", "reconnect_ms=3000"};  // bounds on failures only (no lost ok here)
   }
   void TearDown() override {
     board_.reset();

@@ -3,7 +3,8 @@
 // ending in a cloud. Checked against the fake board's own record of when the lasers switched and where the
 // table was: no frame written was exposed (any row) across a laser switch or while the table turned, and
 // the cloud lies on the true surface (an off-axis sphere, so a frame taken at the wrong table angle would
-// put its points off it).
+// put its points off it). The same with faults: a lost "ok", the board unplugged for 300 ms mid-scan and a
+// frame the camera dropped, ending in a complete bundle.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -12,6 +13,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include "fake_ciclop.h"
 #include "fake_ciclop_truth.h"
@@ -32,8 +34,9 @@ using device::testing::FakeCiclopOptions;
 
 constexpr double kRadPerDeg = M_PI / 180.0;
 
-TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) {
-  const fs::path dir = fs::temp_directory_path() / ("rotoscan_ciclop_scan_" + std::to_string(::getpid()));
+void CiclopScan(bool faults) {
+  const fs::path dir = fs::temp_directory_path() /
+                       ("rotoscan_ciclop_scan_" + std::to_string(::getpid()) + (faults ? "_faults" : ""));
   fs::remove_all(dir);
   fs::create_directories(dir);
   const fs::path scene_path = dir / "scene.json";
@@ -51,7 +54,8 @@ TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) {
   OpenContext context;
   context.scene_path = scene_path.string();
   context.truth = &truth;
-  context.options = {"rolling=1", "ok_timeout_ms=200"};
+  context.options = {"rolling=1", "ok_timeout_ms=2000"};
+  if (faults) context.options.push_back("drop=25");  // the camera loses its frame 25  // no lost "ok" here: only a bound on a failure
   auto board = OpenBoard("ciclop:" + fake_options.link_path, &context);
   ASSERT_TRUE(board.ok()) << board.status().ToString();
   context.board = board.value().get();
@@ -73,7 +77,21 @@ TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) {
   o.header.camera.laser_exposure_us = 2000;
   o.header.camera.natural_exposure_us = 20000;
   int checked = 0;
+  bool lost_ok = false, unplugged = false;
+  std::thread replug;
   o.on_frame = [&](const CapturedFrame& c) {
+    if (faults && c.step == 1 && !lost_ok) {
+      lost_ok = true;
+      fake.LoseOks(1);
+    }
+    if (faults && c.step == 2 && !unplugged) {
+      unplugged = true;
+      fake.Unplug();
+      replug = std::thread([&fake] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the injected unplug
+        fake.Replug();
+      });
+    }
     const int64_t start = c.frame->exposure_start_us;
     const int64_t end = c.frame->ExposureEndUs();
     const auto switches = truth.LaserSwitches(start, end);
@@ -90,12 +108,19 @@ TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) {
     return Status::Ok();
   };
   auto summary = RunScan(*board.value(), *camera.value(), *context.clock, dir / "b", o, nullptr);
+  if (replug.joinable()) replug.join();
   ASSERT_TRUE(summary.ok()) << summary.status().ToString();
   std::printf("%s\n", summary.value().Summary().c_str());
   EXPECT_EQ(checked, 16);
   EXPECT_EQ(summary.value().frames_used, 16);
-  EXPECT_GE(fake.moves().size(), 3u);  // steps 1..3 (step 0 is where the table stands), none repeated
-  EXPECT_LE(fake.moves().size(), 4u);
+  EXPECT_EQ(unplugged, faults);
+  if (faults) {
+    EXPECT_GE(summary.value().frames_dropped, 1);
+  }
+  EXPECT_GE(fake.moves().size(), 3u);  // steps 1..3 (step 0 is where the table stands)
+  if (!faults) {
+    EXPECT_LE(fake.moves().size(), 4u);  // none repeated
+  }
   EXPECT_FALSE(fake.LaserAt(1, MonotonicNowUs()));
   EXPECT_FALSE(fake.LaserAt(2, MonotonicNowUs()));
 
@@ -119,6 +144,10 @@ TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) {
   board.value().reset();
   fs::remove_all(dir);
 }
+
+TEST(CiclopScan, FreeRunningRollingShutterOverAPtyEndsInACloudOnTheSurface) { CiclopScan(false); }
+
+TEST(CiclopScan, LostOkUnplugAndDroppedFrameEndInACompleteBundle) { CiclopScan(true); }
 
 }  // namespace
 }  // namespace rotoscan::capture

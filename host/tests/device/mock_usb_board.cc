@@ -14,6 +14,7 @@
 #include <deque>
 #include <fstream>
 #include <mutex>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 #include <thread>
@@ -33,6 +34,45 @@ std::string ReadDescription() {
   std::stringstream s;
   s << in.rdbuf();
   return s.str();
+}
+
+// The process's one umockdev testbed (umockdev_testbed_new() points the preload at a new sysfs tree, so a
+// second testbed would hide the first's devices), shared by the MockUsbBoards alive, and the addresses they
+// hold (a re-plugged board takes the next free one).
+struct SharedBed {
+  std::mutex mutex;
+  UMockdevTestbed* testbed = nullptr;
+  int users = 0;
+  std::set<int> addresses;
+};
+SharedBed& Bed() {
+  static SharedBed* bed = new SharedBed;  // never destroyed: boards may outlive static destruction order
+  return *bed;
+}
+UMockdevTestbed* AcquireTestbed() {
+  std::lock_guard<std::mutex> lock(Bed().mutex);
+  if (Bed().users++ == 0) Bed().testbed = umockdev_testbed_new();
+  return Bed().testbed;
+}
+void ReleaseTestbed() {
+  std::lock_guard<std::mutex> lock(Bed().mutex);
+  if (--Bed().users == 0) {
+    g_object_unref(Bed().testbed);
+    Bed().testbed = nullptr;
+    Bed().addresses.clear();
+  }
+}
+// Takes `want` if free, else the next free address after it; gives `release` (when > 0) back first.
+int TakeAddress(int want, int release) {
+  std::lock_guard<std::mutex> lock(Bed().mutex);
+  if (release > 0) Bed().addresses.erase(release);
+  while (Bed().addresses.count(want) != 0) ++want;
+  Bed().addresses.insert(want);
+  return want;
+}
+void ReleaseAddress(int address) {
+  std::lock_guard<std::mutex> lock(Bed().mutex);
+  Bed().addresses.erase(address);
 }
 
 void ReplaceAll(std::string* s, const std::string& from, const std::string& to) {
@@ -60,6 +100,7 @@ struct MockUsbBoard::Impl {
   UMockdevIoctlBase* handler = nullptr;
   std::string description;
   std::string syspath;
+  std::vector<std::string> attached;  // device nodes the handler serves (old ones answer ENODEV)
   int address = 2;
   std::thread clock;
   std::atomic<bool> stop{false};
@@ -83,6 +124,15 @@ struct MockUsbBoard::Impl {
 
   void Plug() {
     std::string text = description;
+    const std::string port_name = "1-" + std::to_string(options.port);
+    if (options.port != 1) {
+      ReplaceAll(&text, "usb1/1-1\n", "usb1/" + port_name + "\n");
+      ReplaceAll(&text, "A: devpath=1\n", "A: devpath=" + std::to_string(options.port) + "\n");
+    }
+    if (!options.serial.empty()) {
+      const size_t at = text.find("A: serial=");
+      if (at != std::string::npos) text.replace(at, text.find('\n', at) - at, "A: serial=" + options.serial);
+    }
     if (address != 2) {
       char num[8];
       std::snprintf(num, sizeof(num), "%03d", address);
@@ -99,12 +149,13 @@ struct MockUsbBoard::Impl {
       g_error_free(error);
       throw std::runtime_error("umockdev: attaching the ioctl handler: " + message);
     }
+    attached.push_back(DevNode());
     if (!umockdev_testbed_add_from_string(testbed, text.c_str(), &error)) {
       std::string message = error->message;
       g_error_free(error);
       throw std::runtime_error("umockdev: adding the board: " + message);
     }
-    syspath = "/sys/devices/pci0000:00/0000:00:14.0/usb1/1-1";
+    syspath = "/sys/devices/pci0000:00/0000:00:14.0/usb1/" + port_name;
     umockdev_testbed_uevent(testbed, syspath.c_str(), "add");
   }
 
@@ -313,7 +364,8 @@ MockUsbBoard::MockUsbBoard(VirtualBoard* board, const Options& options) : impl_(
   impl_->board = board;
   impl_->options = options;
   impl_->description = ReadDescription();
-  impl_->testbed = umockdev_testbed_new();
+  impl_->testbed = AcquireTestbed();
+  impl_->address = TakeAddress(options.address, 0);
   impl_->handler = umockdev_ioctl_base_new();
   g_signal_connect(impl_->handler, "handle-ioctl", G_CALLBACK(&Impl::OnIoctl), impl_.get());
   impl_->Plug();
@@ -331,7 +383,19 @@ MockUsbBoard::~MockUsbBoard() {
     impl_->pending_in.clear();
     impl_->done.clear();
   }
-  g_object_unref(impl_->testbed);
+  {
+    std::lock_guard<std::mutex> lock(impl_->mutex);
+    if (impl_->plugged) {
+      umockdev_testbed_uevent(impl_->testbed, impl_->syspath.c_str(), "remove");
+      umockdev_testbed_remove_device(impl_->testbed, impl_->syspath.c_str());
+    }
+  }
+  for (const std::string& node : impl_->attached) {
+    GError* error = nullptr;
+    if (!umockdev_testbed_detach_ioctl(impl_->testbed, node.c_str(), &error) && error != nullptr) g_error_free(error);
+  }
+  ReleaseAddress(impl_->address);
+  ReleaseTestbed();
   g_object_unref(impl_->handler);
 }
 
@@ -380,7 +444,7 @@ void MockUsbBoard::Replug() {
       ++it;
     }
   }
-  ++impl_->address;  // a re-plugged device gets a new address
+  impl_->address = TakeAddress(impl_->address + 1, impl_->address);  // a re-plugged device gets a new address
   impl_->plugged = true;
   impl_->Plug();
 }
@@ -392,6 +456,12 @@ int MockUsbBoard::address() const {
 
 void MockUsbBoard::WithBoardLocked(const std::function<void()>& f) {
   std::lock_guard<std::mutex> lock(impl_->mutex);
+  f();
+}
+
+void MockUsbBoard::WithBoardAtNow(const std::function<void()>& f) {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  if (impl_->options.real_time) impl_->CatchUp();
   f();
 }
 

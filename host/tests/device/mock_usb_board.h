@@ -13,7 +13,8 @@
 //
 // Faults are armed for the next packets: a lost OUT packet, a corrupted byte in an OUT or IN packet, an OUT
 // packet delivered twice; Unplug() fails every URB and ioctl like a pulled cable and removes the device,
-// Replug() brings it back at a new address with the board's state intact (a self-powered board).
+// Replug() brings it back at a new address with the board's state intact (a self-powered board). Several
+// MockUsbBoards may be alive at once (Options::port, address, serial): they share the process's testbed.
 #pragma once
 
 #include <cstdint>
@@ -34,6 +35,13 @@ class MockUsbBoard {
     // time t is host time device_zero_host_us() + t, as a board whose crystal ran at the host's rate would
     // be. Each tick runs the board up to the host's time, so a late tick catches up instead of drifting.
     bool real_time = false;
+    // Several boards on the one mocked bus (one umockdev testbed per process, shared by every MockUsbBoard
+    // alive): each at its own root-hub port (sysfs "1-<port>") and address, with its own USB serial number
+    // string (sysfs "serial", the kernel's copy of iSerialNumber; empty: the description's, which is the
+    // FakeBoard's uid). A re-plug moves the board to the next free address.
+    int port = 1;
+    int address = 2;
+    std::string serial;
   };
 
   static bool InMockEnvironment();
@@ -55,6 +63,10 @@ class MockUsbBoard {
 
   // Runs `f` with the board's time stopped (for reading the simulator's state).
   void WithBoardLocked(const std::function<void()>& f);
+  // Options::real_time: runs the board up to the host's present time first (in the caller's thread), then
+  // `f` with its time stopped, so that what `f` reads of the board's past is complete up to now even when
+  // the clock thread lags on a loaded machine. Without real_time, as WithBoardLocked.
+  void WithBoardAtNow(const std::function<void()>& f);
   // Stops or restarts the board's clock (the ioctls are still served). No effect with Options::real_time.
   void PauseTime(bool paused);
   // Options::real_time: the host time (CLOCK_MONOTONIC, microseconds) at which the board's time was 0.

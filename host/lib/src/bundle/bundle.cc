@@ -142,10 +142,13 @@ Status CheckRelativeFile(const std::string& file, const std::string& field) {
 }
 
 Status ValidateHeader(const BundleHeader& header) {
-  if (header.format_version != kFormatVersion) {
+  if (header.format_version < 1 || header.format_version > kMaxFormatVersion) {
     return InvalidArgumentError("format_version " + std::to_string(header.format_version) +
-                                " is not supported (this build reads " + std::to_string(kFormatVersion) +
+                                " is not supported (this build reads 1.." + std::to_string(kMaxFormatVersion) +
                                 ")");
+  }
+  if (header.shared_off_frame && header.format_version < 2) {
+    return InvalidArgumentError("a shared off frame needs format_version 2");
   }
   const CameraInfo& c = header.camera;
   ROTOSCAN_RETURN_IF_ERROR(c.model.Validate().WithContext("camera"));
@@ -269,6 +272,7 @@ std::string BundleJson(const BundleHeader& header, const std::vector<FrameRecord
                 {{"name", header.device.name},
                  {"serial", header.device.serial},
                  {"firmware_version", header.device.firmware_version}}}};
+  if (header.shared_off_frame) root["shared_off_frame"] = true;
   if (header.kind == BundleKind::kCalibration) {
     root["target"] = {{"kind", TargetKindName(header.target.kind)},
                       {"cols", header.target.cols},
@@ -301,9 +305,9 @@ Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& 
   if (format != "rotoscan-bundle")
     return fail(CorruptDataError("field 'format' must be \"rotoscan-bundle\""));
   if (Status s = top.Int("format_version", 1, 1000, &h.format_version); !s.ok()) return fail(s);
-  if (h.format_version != kFormatVersion) {
+  if (h.format_version > kMaxFormatVersion) {
     return fail(CorruptDataError("field 'format_version' = " + std::to_string(h.format_version) +
-                                 " is not supported (this build reads " + std::to_string(kFormatVersion) +
+                                 " is not supported (this build reads 1.." + std::to_string(kMaxFormatVersion) +
                                  ")"));
   }
   std::string kind;
@@ -318,6 +322,10 @@ Result<Bundle> ParseBundleJson(const std::string& json_text, const std::string& 
     return fail(CorruptDataError("field 'table_step_deg' must be in [0, 360]"));
   h.table_step_rad = geometry::DegToRad(step_deg);
   if (Status s = top.Int("placement", 0, 255, &h.placement, false); !s.ok()) return fail(s);
+  if (Status s = top.Bool("shared_off_frame", &h.shared_off_frame); !s.ok()) return fail(s);
+  if (h.shared_off_frame && h.format_version < 2) {
+    return fail(CorruptDataError("field 'shared_off_frame' needs format_version 2"));
+  }
 
   // camera
   if (!root.contains("camera")) return fail(CorruptDataError("missing field 'camera'"));

@@ -25,7 +25,7 @@ uint8_t MaskOf(LaserState s) {
 std::vector<LaserState> Wanted(const ScanOptions& o, int step) {
   std::vector<LaserState> w;
   if (o.lasers) w = {LaserState::kLeft, LaserState::kRight, LaserState::kOff};
-  if (o.natural_every > 0 && step % o.natural_every == 0) w.push_back(LaserState::kNatural);
+  if (!o.shared_off && o.natural_every > 0 && step % o.natural_every == 0) w.push_back(LaserState::kNatural);
   return w;
 }
 
@@ -169,10 +169,14 @@ Status FreeRunning(Run& run) {
     if (c) settled = std::max(settled, c->latest_us);
   }
   std::optional<BoardChange> next;  // the change to shot i + 1, issued ahead
+  // After a wrong prediction for shot i, the change to shot i + 1 waits for shot i's frame instead: a
+  // prediction that keeps failing (a camera whose timestamps or exposure changes lag) must not make the
+  // scan go back and forth between two shots for ever.
+  bool predict = true;
   while (i < targets.size()) {
     ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
     const int64_t period = run.period_count > 0 ? std::llround(run.period_sum / run.period_count) : 0;
-    if (!next && i + 1 < targets.size() && period > 0 && run.last_frame_start) {
+    if (predict && !next && i + 1 < targets.size() && period > 0 && run.last_frame_start) {
       // The first frame starting after `settled` serves shot i; it ends at its start + readout + exposure.
       int64_t start = *run.last_frame_start;
       while (start - uncertainty <= settled) start += period;
@@ -194,6 +198,7 @@ Status FreeRunning(Run& run) {
     if (after && before && frame->exposure_us == ExposureOf(o, target.laser)) {
       ROTOSCAN_RETURN_IF_ERROR(run.Write(target.step, target.laser, *frame, 0, frame->device_time_us.value_or(0)));
       ++i;
+      predict = true;
       if (next) {
         settled = next->latest_us;
         next.reset();
@@ -205,10 +210,12 @@ Status FreeRunning(Run& run) {
     }
     ++run.summary.frames_rejected;
     if (next && frame->exposure_start_us + uncertainty >= next->earliest_us) {
-      // The change came too early for shot i's frame (a wrong prediction): go back to shot i.
+      // The change came too early for shot i's frame (a wrong prediction): go back to shot i, and take it
+      // without predicting.
       ROTOSCAN_ASSIGN_OR_RETURN(auto c, Apply(run, target.step, target.laser, &exposure));
       if (c) settled = std::max(settled, c->latest_us);
       next.reset();
+      predict = false;
     }
   }
   return run.camera.Stop();
@@ -359,7 +366,7 @@ struct Pass {
 // steps (k > 1), the laser shots at every step and then the natural frames in a second program whose moves
 // are k steps long (a board program takes the same shots at each of its steps).
 std::vector<Pass> Passes(const ScanOptions& o) {
-  if (o.natural_every <= 1) return {{Wanted(o, 0), 1}};
+  if (o.natural_every <= 1 || o.shared_off) return {{Wanted(o, 0), 1}};
   std::vector<Pass> passes;
   if (o.lasers) passes.push_back({{LaserState::kLeft, LaserState::kRight, LaserState::kOff}, 1});
   passes.push_back({{LaserState::kNatural}, o.natural_every});
@@ -494,6 +501,11 @@ Status ScanOptions::Check() const {
   if (laser_exposure_us <= 0 || natural_exposure_us <= 0) return InvalidArgumentError("exposures must be positive");
   if (natural_every < 0) return InvalidArgumentError("natural_every must be >= 0");
   if (!lasers && natural_every == 0) return InvalidArgumentError("no frames to take (no lasers, no natural)");
+  if (shared_off && !lasers) return InvalidArgumentError("a shared off frame needs the lasers (a scan, not views)");
+  if (shared_off && natural_every > 1) {
+    return InvalidArgumentError("with a shared off frame every step's off frame is its color frame: "
+                                "a natural frame every k steps does not apply");
+  }
   if (match_tolerance_us <= 0 || frame_timeout_us <= 0 || max_retakes < 0) {
     return InvalidArgumentError("bad matching or timeout options");
   }
@@ -528,6 +540,11 @@ Result<ScanSummary> RunScan(Board& board, Camera& camera, Clock& clock, const st
   }
   summary.timing = timing;
   bundle::BundleHeader header = options.header;
+  if (options.shared_off) {
+    header.shared_off_frame = true;
+    header.format_version = std::max(header.format_version, 2);
+    header.camera.natural_exposure_us = static_cast<double>(options.laser_exposure_us);  // the color frame's
+  }
   const double step_deg = options.step_deg > 0 ? options.step_deg : 360.0 / options.steps;
   header.table_step_rad = step_deg * kPi / 180.0;
   bundle::BundleWriter::Options writer_options;

@@ -1,10 +1,15 @@
 // Backend `usb`: our STM32F411 board over libusb (device::Client, device/transport.h), on the real
 // CLOCK_MONOTONIC clock. `usb` opens the first board; `usb:SERIAL` the one whose unique id (GET_INFO)
 // is SERIAL, or `usb:BUS-ADDRESS` ("1-7") the one at that bus and address. An unplug is handled by the
-// client (re-open and carry on) and a program stopped meanwhile is resumed (client_board.cc).
+// client (re-open and carry on) and a program stopped meanwhile is resumed (client_board.cc). With several
+// boards attached, the board is re-opened by its USB serial number (our firmware's iSerialNumber is its
+// unique id), so a re-plugged board is found again at its new address; only a board whose serial the
+// kernel does not show stays pinned to its bus and address (a re-plug then ends the scan: resume it).
 //
 // Backend options: steps_per_rev (motor steps per table turn, default 19200), reconnect_ms (how long the
 // client tries to re-open a board that went away before the scan fails, default 5000).
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
 
 #include "backend_options.h"
@@ -36,14 +41,27 @@ Result<std::unique_ptr<Board>> OpenUsbBoard(const std::string& argument, OpenCon
   for (const auto& b : boards) {
     if (!by_address || (b.bus == bus && b.address == address)) candidates.push_back(b);
   }
+  auto same = [](const std::string& a, const std::string& b) {
+    return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
+             return std::tolower(static_cast<unsigned char>(x)) == std::tolower(static_cast<unsigned char>(y));
+           });
+  };
   for (const auto& b : candidates) {
+    // `usb:SERIAL`: a board whose USB serial is known and another is not opened at all (it may be
+    // another program's).
+    if (!argument.empty() && !by_address && !b.serial.empty() && !same(b.serial, argument)) continue;
     device::LibusbTransportOptions transport_options;
     // A re-plugged board comes back at a new address: with one board attached the transport opens "the
-    // first board" so that the client's re-open after an unplug finds it again. With several, it is pinned
-    // to this one's bus and address (a re-plug then ends the scan: resume it).
+    // first board" so that the client's re-open after an unplug finds it again. With several, it opens the
+    // one with this board's USB serial wherever it is, or, when the serial is unknown, the one at this
+    // bus and address.
     if (by_address || boards.size() > 1) {
-      transport_options.bus = b.bus;
-      transport_options.address = b.address;
+      if (!b.serial.empty()) {
+        transport_options.serial = b.serial;
+      } else {
+        transport_options.bus = b.bus;
+        transport_options.address = b.address;
+      }
     }
     ROTOSCAN_ASSIGN_OR_RETURN(auto transport, device::MakeLibusbTransport(transport_options));
     auto client = device::Client::Connect(std::move(transport), client_options);
@@ -51,7 +69,7 @@ Result<std::unique_ptr<Board>> OpenUsbBoard(const std::string& argument, OpenCon
       if (candidates.size() == 1) return client.status();
       continue;
     }
-    if (!argument.empty() && !by_address && client.value()->info().uid != argument) continue;
+    if (!argument.empty() && !by_address && !same(client.value()->info().uid, argument)) continue;
     BoardInfo info;
     info.name = "rotoscan board";
     info.serial = client.value()->info().uid;

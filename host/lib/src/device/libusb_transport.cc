@@ -10,7 +10,7 @@
 //  * Writes use the synchronous libusb_bulk_transfer(), which libusb allows beside an event thread.
 //  * Unplug: an IN transfer that ends with NO_DEVICE (or any error other than a cancel) marks the transport
 //    gone; Read() then reports DeviceError after the queued bytes, and Open() finds the board anew by its ids
-//    (the board gets a new address when re-plugged).
+//    (the board gets a new address when re-plugged), or by its serial number when several are attached.
 //  * Close(): cancel every IN transfer, wait (on the event thread's progress) until each callback has seen
 //    its cancel, then stop the thread, release the interface and close the handle. Bytes that completed
 //    meanwhile (an unplugged board's last transfers are reaped after the disconnect) are kept for the
@@ -19,10 +19,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <mutex>
 #include <sstream>
 #include <thread>
@@ -59,6 +61,21 @@ std::string PortPath(libusb_device* dev) {
   return s.str();
 }
 
+// The device's USB serial number string as the kernel read it at enumeration (sysfs), empty when it has
+// none or sysfs is not there: opening the device to ask would disturb a board another program uses.
+std::string SysfsSerial(libusb_device* dev) {
+  std::ifstream in("/sys/bus/usb/devices/" + PortPath(dev) + "/serial");
+  std::string serial;
+  std::getline(in, serial);
+  return serial;
+}
+
+bool SameSerial(const std::string& a, const std::string& b) {
+  return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
+           return std::tolower(static_cast<unsigned char>(x)) == std::tolower(static_cast<unsigned char>(y));
+         });
+}
+
 class LibusbTransport final : public Transport {
  public:
   LibusbTransport(libusb_context* context, const LibusbTransportOptions& options)
@@ -82,12 +99,14 @@ class LibusbTransport final : public Transport {
       if (desc.idVendor != options_.vendor_id || desc.idProduct != options_.product_id) continue;
       if (options_.bus != 0 && libusb_get_bus_number(list[i]) != options_.bus) continue;
       if (options_.address != 0 && libusb_get_device_address(list[i]) != options_.address) continue;
+      if (!options_.serial.empty() && !SameSerial(SysfsSerial(list[i]), options_.serial)) continue;
       found = list[i];
       break;
     }
     if (found == nullptr) {
       libusb_free_device_list(list, 1);
-      return NotFoundError("no Rotoscan board found (USB " + IdString() + ")");
+      return NotFoundError("no Rotoscan board found (USB " + IdString() +
+                           (options_.serial.empty() ? "" : ", serial " + options_.serial) + ")");
     }
     std::ostringstream desc;
     desc << "usb " << IdString() << " bus " << static_cast<int>(libusb_get_bus_number(found)) << " address "
@@ -310,6 +329,7 @@ Result<std::vector<UsbBoard>> ListUsbBoards(uint16_t vendor_id, uint16_t product
     board.vendor_id = desc.idVendor;
     board.product_id = desc.idProduct;
     board.port_path = PortPath(list[i]);
+    board.serial = SysfsSerial(list[i]);
     boards.push_back(board);
   }
   libusb_free_device_list(list, 1);

@@ -100,7 +100,10 @@ Result<StepFrames> BundleStepSource::Load(int index) const {
     switch (state) {
       case bundle::LaserState::kLeft: frames.laser[0] = std::move(*image); break;
       case bundle::LaserState::kRight: frames.laser[1] = std::move(*image); break;
-      case bundle::LaserState::kOff: frames.off = std::move(*image); break;
+      case bundle::LaserState::kOff:
+        frames.off = std::move(*image);
+        if (bundle_.header.shared_off_frame) frames.natural = frames.off;  // also the color frame
+        break;
       case bundle::LaserState::kNatural: frames.natural = std::move(*image); break;
     }
   }
@@ -116,7 +119,8 @@ Result<cv::Mat> StepSource::LoadNatural(int index, double* table_angle_rad) cons
 Result<cv::Mat> BundleStepSource::LoadNatural(int index, double* table_angle_rad) const {
   ROTOSCAN_CHECK(index >= 0 && index < StepCount());
   const int step = steps_[static_cast<size_t>(index)];
-  const int natural = bundle_.FindFrame(step, bundle::LaserState::kNatural);
+  int natural = bundle_.FindFrame(step, bundle::LaserState::kNatural);
+  if (natural < 0 && bundle_.header.shared_off_frame) natural = bundle_.FindFrame(step, bundle::LaserState::kOff);
   if (natural < 0) return cv::Mat();
   if (table_angle_rad != nullptr) {
     // The laser frames' angle, as Load() takes it (the natural frame's when the step has no other).
@@ -129,8 +133,9 @@ Result<cv::Mat> BundleStepSource::LoadNatural(int index, double* table_angle_rad
       }
     }
   }
-  auto image = bundle::ReadFrame(bundle_, bundle_.frames[static_cast<size_t>(natural)]);
-  if (!image.ok()) return image.status().WithContext(bundle_.frames[static_cast<size_t>(natural)].file);
+  const bundle::FrameRecord& record = bundle_.frames[static_cast<size_t>(natural)];
+  auto image = bundle::ReadFrame(bundle_, record);
+  if (!image.ok()) return image.status().WithContext(record.file);
   return std::move(*image);
 }
 

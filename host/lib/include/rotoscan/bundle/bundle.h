@@ -5,7 +5,7 @@
 //   frames/       lossless PNG images, 8- or 16-bit, gray or color (RGB on disk)
 //   truth/        virtual scanner only: see bundle/truth.h
 //
-// bundle.json (format_version 1). Angles are in degrees in the file (it is meant for people) and in
+// bundle.json (format_version 1, or 2 for a bundle with a shared off frame). Angles are in degrees in the file (it is meant for people) and in
 // radians in the structs below; lengths in mm, times in microseconds.
 //
 //   {
@@ -18,6 +18,7 @@
 //                 "laser_exposure_us": 2000, "natural_exposure_us": 20000, "gain_db": 0 },
 //     "table_step_deg": 0.3,
 //     "placement": 0,                                   (optional, default 0: the object's placement)
+//     "shared_off_frame": true,                         (format_version 2 only; see BundleHeader)
 //     "device": { "name": "...", "serial": "...", "firmware_version": "..." },
 //     "target": { "kind": "none" | "calibration_object" | "checkerboard" | "table_checkerboard",
 //                 "cols": 9, "rows": 6, "square_mm": 10, "description": "...",
@@ -57,7 +58,11 @@
 
 namespace rotoscan::bundle {
 
-inline constexpr int kFormatVersion = 1;
+inline constexpr int kFormatVersion = 1;  // what a bundle without version-2 fields is written as
+// Version 2 adds "shared_off_frame". A writer uses it only for a bundle that has one (so that an older
+// reader refuses such a bundle with a clear error instead of processing it without colors); readers
+// accept 1..kMaxFormatVersion.
+inline constexpr int kMaxFormatVersion = 2;
 // Bounds on what a reader accepts (hardened parsing).
 inline constexpr std::size_t kMaxFrames = 1'000'000;
 inline constexpr int kMaxImageSide = 16384;
@@ -127,6 +132,10 @@ struct BundleHeader {
   // Which placement of the object on the table this scan is (0 the first; 1 e.g. the object on its side):
   // scans of several placements are aligned by `rotoscan merge` (pipeline/placements.h). In [0, 255].
   int placement = 0;
+  // A shared off frame (`rotoscan scan --shared-off`, format_version 2): each step has left, right and off
+  // frames but no natural frame, and its off frame, taken at the laser exposure, is also its color frame
+  // (pipeline/process.h); camera.natural_exposure_us is then the laser exposure. 3 frames per step.
+  bool shared_off_frame = false;
 };
 
 struct Bundle {

@@ -16,6 +16,15 @@
 //    change's latest possible time plus the camera's timestamp uncertainty, and carries the exposure
 //    asked for. No fixed sleeps, no frames flushed by count: frames are judged by their timestamps.
 //
+// Shared off frame (ScanOptions::shared_off): per step left, right and off only, all at the laser
+// exposure, and the off frame is also the step's color frame (3 frames instead of 4; the bundle says so:
+// bundle::BundleHeader::shared_off_frame, format_version 2). It is taken at the laser exposure, not the
+// natural one with the background scaled down, because the background must match the laser frames
+// exactly for the line extraction (a long exposure saturates where the surface is bright, and a webcam's
+// response is not linear, so no scaling gives the short exposure's background back), whereas color only
+// loses signal (darker by the exposure ratio, noisier, coarser in 8 bits) and is averaged over many views
+// by the color pass. No exposure changes either: a free-running camera never waits for one to take effect.
+//
 // Resume: a scan interrupted (Ctrl-C, crash, unplug beyond the client's reconnect window) leaves
 // "<out>.partial"; ScanOptions::resume continues it, re-taking only the frames it lacks.
 #pragma once
@@ -60,6 +69,7 @@ struct ScanOptions {
   int64_t laser_exposure_us = 2000;     // left, right, off
   int64_t natural_exposure_us = 20000;  // natural (color)
   int natural_every = 1;                // a natural frame every k steps (0: none); triggered: a second program
+  bool shared_off = false;              // the off frame is also the color frame (see above): no natural frames
   bool lasers = true;                   // false: natural frames only (calibration views)
   bundle::BundleHeader header;          // camera, device, kind, target; table_step is set from step_deg
   bool resume = false;

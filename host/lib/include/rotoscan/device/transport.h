@@ -58,6 +58,11 @@ struct LibusbTransportOptions {
   // Bus number and address of one board when several are attached; 0 = the first board found.
   int bus = 0;
   int address = 0;
+  // The board's USB serial number (iSerialNumber: our firmware's unique id in hex, firmware/usb/usb_link.c;
+  // compared without case): when set, Open() takes only the board with that serial, wherever it is, so a
+  // re-plugged board is found again at its new address among several. Read from the kernel's copy
+  // (sysfs .../serial), so no other board is opened to ask. Empty: any (with bus/address as above).
+  std::string serial;
   int in_transfers = 4;         // IN transfers kept submitted; at least 2 so none is ever missing
   int in_transfer_size = 512;   // bytes per IN transfer, a multiple of the max packet size
   int write_timeout_ms = 1000;  // a bulk OUT transfer that takes longer fails with Timeout
@@ -75,6 +80,7 @@ struct UsbBoard {
   uint16_t vendor_id = 0;
   uint16_t product_id = 0;
   std::string port_path;  // "1-1.4"
+  std::string serial;     // USB serial number string as the kernel read it (sysfs); empty when unknown
 };
 
 // Every attached device with the given ids (the Rotoscan ids by default); empty when none.

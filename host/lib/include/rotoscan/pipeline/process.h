@@ -15,6 +15,13 @@
 // laser-off frames but lacks one at some step skips that step (frames were lost), unless a dark frame is
 // given.
 //
+// Shared off frame (bundle::BundleHeader::shared_off_frame, `rotoscan scan --shared-off`): a step has no
+// natural frame; its laser-off frame, taken at the laser exposure, is both the background and the color
+// frame, so Load() and LoadNatural() hand it out as `natural` too, as it is (not brightened: colors are
+// darker than a 4-frame scan's by the exposure ratio, and a brightening factor would saturate wherever
+// the natural light is not the laser frames' ambient; the color pass and the evaluation fit one gain).
+// No flag is needed: the bundle says so.
+//
 // Bad input: a frame whose size differs from the calibration is an error (kInvalidArgument naming the
 // file), as is a dark frame of another size or type than the laser frames; a step missing its laser-off
 // frame (see above) or both laser frames, or a frame that does not decode, is a counted skip
