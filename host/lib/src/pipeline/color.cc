@@ -21,13 +21,12 @@
 namespace rotoscan::pipeline {
 namespace {
 
-constexpr double kShadowRatio = 0.6;  // darker than this x the model: a cast shadow in that view
-
 struct Observation {
   uint32_t point = 0;
   uint16_t view = 0;
   std::array<uint8_t, 3> rgb{};
   float cos_camera = 0;
+  bool lamp_blocked = false;  // ColorOptions::truth_visibility's answer (diagnostics)
 };
 
 struct View {
@@ -86,14 +85,21 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv:
     const Eigen::Vector3f to_camera = (camera_in_table - p.position_in_table).normalized();
     const float cos_camera = p.normal.normalized().dot(to_camera);
     if (cos_camera < options.min_cos_camera) continue;
-    const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
-    if (z[i] >
-        depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
-      continue;  // hidden by a nearer surface
+    bool lamp_blocked = false;
+    if (options.truth_visibility) {
+      const int truth = options.truth_visibility(i, angle);
+      if ((truth & kHidden) != 0) continue;
+      lamp_blocked = (truth & kLampBlocked) != 0;
+    } else {
+      const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
+      if (z[i] >
+          depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
+        continue;  // hidden by a nearer surface
+      }
     }
     const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
     if (*std::max_element(rgb.begin(), rgb.end()) >= options.saturation) continue;
-    out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera});
+    out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera, lamp_blocked});
   }
 }
 
@@ -110,6 +116,7 @@ Status ColorOptions::Check() const {
   if (zbuffer_splat_cells < 0 || zbuffer_splat_cells > 8) {
     return InvalidArgumentError("color: zbuffer_splat_cells in [0, 8]");
   }
+  if (!(shadow_ratio >= 0 && shadow_ratio < 1)) return InvalidArgumentError("color: shadow_ratio in [0, 1)");
   if (saturation < 1 || saturation > 256) return InvalidArgumentError("color: saturation in [1, 256]");
   if (lamp_in_cam && (!lamp_in_cam->allFinite() || lamp_in_cam->norm() > 1e3)) {
     return InvalidArgumentError("color: the lamp vector must be finite (and below 1e3)");
@@ -194,14 +201,18 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   auto normal_in_cam = [&](const Observation& o) -> Eigen::Vector3f {
     return views[o.view].cam_from_table_rotation * cloud->points[o.point].normal.normalized();
   };
-  // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than kShadowRatio x
+  const float shadow_ratio = static_cast<float>(options.shadow_ratio);
+  const bool truth_shadows = static_cast<bool>(options.truth_visibility);
+  // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than shadow_ratio x
   // the model against a reference taken high in the views' range (the 75th percentile of I / shading: cast
   // shadows only darken, so the bright views are the lit truth even when most views are shadowed) are
   // flagged and left out.
   std::vector<float> ratios;
   auto albedo = [&](size_t i, const Eigen::Vector3f& lamp, std::vector<char>* shadow) {
     double num = 0, den = 0;
-    if (shadow != nullptr) {
+    if (shadow != nullptr && truth_shadows) {
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) (*shadow)[k] = obs[k].lamp_blocked;
+    } else if (shadow != nullptr) {
       ratios.clear();
       for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
         ratios.push_back(Luminance(obs[k].rgb) / Shading(normal_in_cam(obs[k]), lamp));
@@ -211,7 +222,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       const float reference = ratios[at];
       for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
         const float s = Shading(normal_in_cam(obs[k]), lamp);
-        (*shadow)[k] = Luminance(obs[k].rgb) < kShadowRatio * reference * s;
+        (*shadow)[k] = Luminance(obs[k].rgb) < shadow_ratio * reference * s;
       }
     }
     for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
@@ -265,7 +276,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
           }
           const size_t at = (ratio.size() * 3) / 4;
           std::nth_element(ratio.begin(), ratio.begin() + static_cast<std::ptrdiff_t>(at), ratio.end());
-          const float floor = kShadowRatio * ratio[at];
+          const float floor = shadow_ratio * ratio[at];
           double num = 0, den = 0;
           for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
             if (ys[k] < floor * shading[k]) continue;

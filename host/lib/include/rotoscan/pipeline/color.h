@@ -32,6 +32,8 @@
 // scans of several placements under the same lamp and exposure get the same colors (pipeline/placements.h).
 #pragma once
 
+#include <cstddef>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -56,9 +58,16 @@ struct ColorOptions {
   int saturation = 250;                        // 8-bit level at which a channel counts as saturated
   bool remove_shading = true;                  // estimate L and divide the shading out
   std::optional<Eigen::Vector3d> lamp_in_cam;  // a calibrated L (see the file comment); skips the estimate
+  double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no shadow test)
+  // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
+  // called from several threads for every candidate observation (point index, the view's table angle)
+  // and returns a TruthVisibility; it replaces the depth-buffer occlusion test and the cast-shadow test.
+  std::function<int(size_t point, double table_angle_rad)> truth_visibility;
   int threads = 0;                             // 0: all cores
   Status Check() const;
 };
+
+enum TruthVisibility : int { kVisibleLit = 0, kHidden = 1, kLampBlocked = 2 };
 
 struct ColorSummary {
   bool done = false;
