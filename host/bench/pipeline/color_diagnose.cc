@@ -3,7 +3,7 @@
 // rig), each variant evaluated against the true albedo (pipeline/evaluate.h: after one gain per
 // channel). A diagnostic, not a benchmark: the truth it uses does not exist for a real scan.
 //
-//   color_diagnose BUNDLE CALIB.yaml SCENE.json [--lamp-only]
+//   color_diagnose BUNDLE CALIB.yaml SCENE.json [--pca]     (--pca: the PCA variants only)
 //
 // Variants (all with the scene's true lamp unless named "estimated"):
 //   grid normals          the cloud's own normals (process's default), the depth-buffer occlusion test and
@@ -13,7 +13,7 @@
 //                         renderer);
 //   + true visibility     occlusion and cast shadows from rays against the true mesh instead of the depth
 //                         buffer and the ratio test (c);
-//   PCA normals           the cloud's normals refit over a radius (pipeline/color.h ShadingNormals).
+//   PCA normals           the cloud's normals refit over a radius (pipeline/color.h, the default).
 // What remains with true normals and true visibility is the combination across views and the sampling
 // of the natural frame (d).
 #include <embree3/rtcore.h>
@@ -190,8 +190,9 @@ int main(int argc, char** argv) {
     return v;
   };
 
-  auto run = [&](const char* name, const std::vector<Eigen::Vector3f>* replace, bool true_visibility,
-                 bool estimated_lamp, double shadow_ratio) {
+  auto run = [&](const std::string& name, const std::vector<Eigen::Vector3f>* replace, bool true_visibility,
+                 bool estimated_lamp, double shadow_ratio, double normal_radius_mm = -1,
+                 double normal_radius_lines = 2) {
     cloud::PointCloud cloud = base->cloud;
     if (replace != nullptr) {
       for (size_t i = 0; i < cloud.size(); ++i) cloud.points[i].normal = (*replace)[i];
@@ -199,6 +200,8 @@ int main(int argc, char** argv) {
     pipeline::ColorOptions color;
     if (!estimated_lamp) color.lamp_in_cam = true_lamp;
     color.shadow_ratio = shadow_ratio;
+    color.normal_radius_mm = normal_radius_mm;
+    color.normal_radius_lines = normal_radius_lines;
     if (true_visibility) {
       normals = replace != nullptr ? replace : &t.smooth;
       color.truth_visibility = visibility;
@@ -211,13 +214,25 @@ int main(int argc, char** argv) {
     auto report = pipeline::EvaluateCloud(cloud, *truth, *views, evaluate);
     if (!report.ok()) return Fail(report.status());
     const pipeline::ColorStats& c = report->color;
-    std::printf("%-52s mean %6.2f levels, within 10: %5.1f %%  (per-point gain %.2f; lamp %.2f %.2f %.2f)\n",
-                name, c.mean_abs_error_all, 100 * c.within_tolerance, c.mean_abs_error_per_point_gain,
+    std::printf("%-52s mean %6.2f levels, within 10: %5.1f %%  (per-point gain %.2f; normals r %.2f mm; lamp %.2f %.2f %.2f)\n",
+                name.c_str(), c.mean_abs_error_all, 100 * c.within_tolerance, c.mean_abs_error_per_point_gain,
+                summary.normal_radius_mm,
                 summary.lamp_in_cam.x(), summary.lamp_in_cam.y(), summary.lamp_in_cam.z());
     std::fflush(stdout);
     return 0;
   };
   int rc = 0;
+  const bool pca_only = argc > 4 && std::string(argv[4]) == "--pca";
+  for (const double lines : {2.0, 3.0, 4.0, 5.0, 6.0, 8.0}) {
+    rc |= run("PCA normals, radius " + std::to_string(lines).substr(0, 3) + " x line spacing", nullptr, false,
+              false, 0.6, 0, lines);
+  }
+  for (const double lines : {3.0, 4.0, 6.0}) {
+    rc |= run("PCA normals, radius " + std::to_string(lines).substr(0, 3) + " x lines, lamp estimated", nullptr,
+              false, true, 0.6, 0, lines);
+  }
+  rc |= run("PCA normals 4 x lines + true visibility", nullptr, true, false, 0.6, 0, 4.0);
+  if (pca_only) return rc;
   rc |= run("grid normals (process --lamp TRUE)", nullptr, false, false, 0.6);
   rc |= run("grid normals, no shadow test", nullptr, false, false, 0.0);
   rc |= run("grid normals + true visibility", nullptr, true, false, 0.6);

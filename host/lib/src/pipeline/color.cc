@@ -12,6 +12,8 @@
 #include <sstream>
 #include <thread>
 
+#include <Eigen/Eigenvalues>
+#include <open3d/geometry/KDTreeFlann.h>
 #include <opencv2/imgproc.hpp>
 
 #include "rotoscan/core/check.h"
@@ -43,8 +45,9 @@ float Shading(const Eigen::Vector3f& normal_in_cam, const Eigen::Vector3f& lamp)
 }
 
 // One view: every point's observation there (facing, inside, unoccluded, unsaturated).
-void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv::Mat& natural, double angle,
-             uint16_t view, const ColorOptions& options, std::vector<Observation>* out) {
+void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std::vector<Eigen::Vector3f>& normals,
+             const cv::Mat& natural, double angle, uint16_t view, const ColorOptions& options,
+             std::vector<Observation>* out) {
   const geometry::CameraModel& camera = rig.camera;
   const Eigen::Isometry3d cam_from_table = rig.WorldFromCamAtAngle(angle).inverse();
   const Eigen::Matrix3f r = cam_from_table.linear().cast<float>();
@@ -81,9 +84,9 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv:
   for (size_t i = 0; i < cloud.size(); ++i) {
     if (z[i] < 0) continue;
     const cloud::CloudPoint& p = cloud.points[i];
-    if (p.normal.squaredNorm() < 0.5f) continue;
+    if (normals[i].squaredNorm() < 0.5f) continue;
     const Eigen::Vector3f to_camera = (camera_in_table - p.position_in_table).normalized();
-    const float cos_camera = p.normal.normalized().dot(to_camera);
+    const float cos_camera = normals[i].dot(to_camera);
     if (cos_camera < options.min_cos_camera) continue;
     bool lamp_blocked = false;
     if (options.truth_visibility) {
@@ -101,6 +104,74 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv:
     if (*std::max_element(rgb.begin(), rgb.end()) >= options.saturation) continue;
     out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera, lamp_blocked});
   }
+}
+
+
+// The scan's spacing between laser lines: the median, over a sample of points, of the distance to the
+// nearest point of another line (another step or laser). 0 when no point has one among its 48 nearest.
+double LineSpacing(const cloud::PointCloud& cloud, const open3d::geometry::KDTreeFlann& tree,
+                   const std::vector<Eigen::Vector3d>& positions) {
+  std::vector<double> spacing;
+  std::vector<int> found;
+  std::vector<double> d2;
+  const size_t stride = std::max<size_t>(1, cloud.size() / 2000);
+  for (size_t i = 0; i < cloud.size(); i += stride) {
+    tree.SearchKNN(positions[i], 48, found, d2);
+    const cloud::CloudPoint& p = cloud.points[i];
+    for (size_t k = 0; k < found.size(); ++k) {
+      const cloud::CloudPoint& q = cloud.points[static_cast<size_t>(found[k])];
+      if (q.step != p.step || q.laser != p.laser) {
+        spacing.push_back(std::sqrt(d2[k]));
+        break;
+      }
+    }
+  }
+  if (spacing.empty()) return 0;
+  std::nth_element(spacing.begin(), spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2), spacing.end());
+  return spacing[spacing.size() / 2];
+}
+
+// Shading normals by PCA over `radius` (file comment in color.h), on the side of each point's own normal;
+// a point with fewer than 6 neighbours, or without a normal, keeps its own (zero: no normal).
+std::vector<Eigen::Vector3f> PcaNormals(const cloud::PointCloud& cloud, double radius, int threads,
+                                        const open3d::geometry::KDTreeFlann& tree,
+                                        const std::vector<Eigen::Vector3d>& positions) {
+  std::vector<Eigen::Vector3f> normals(cloud.size());
+  std::atomic<size_t> next{0};
+  constexpr size_t kChunk = 1024;
+  auto worker = [&] {
+    std::vector<int> found;
+    std::vector<double> d2;
+    for (;;) {
+      const size_t first = next.fetch_add(kChunk);
+      if (first >= cloud.size()) return;
+      for (size_t i = first; i < std::min(cloud.size(), first + kChunk); ++i) {
+        const Eigen::Vector3f own = cloud.points[i].normal;
+        normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
+        if (normals[i].squaredNorm() == 0) continue;
+        tree.SearchRadius(positions[i], radius, found, d2);
+        if (found.size() < 6) continue;
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (const int k : found) mean += positions[static_cast<size_t>(k)];
+        mean /= static_cast<double>(found.size());
+        Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+        for (const int k : found) {
+          const Eigen::Vector3d d = positions[static_cast<size_t>(k)] - mean;
+          covariance += d * d.transpose();
+        }
+        const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+        Eigen::Vector3f n = solver.eigenvectors().col(0).cast<float>();  // the smallest eigenvalue's
+        if (!n.allFinite() || n.squaredNorm() < 0.5f) continue;
+        n.normalize();
+        normals[i] = n.dot(normals[i]) < 0 ? Eigen::Vector3f(-n) : n;
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  return normals;
 }
 
 }  // namespace
@@ -122,6 +193,10 @@ Status ColorOptions::Check() const {
     return InvalidArgumentError("color: the lamp vector must be finite (and below 1e3)");
   }
   if (threads < 0 || threads > 256) return InvalidArgumentError("color: threads in [0, 256]");
+  if (!std::isfinite(normal_radius_mm) || normal_radius_mm > 100)
+    return InvalidArgumentError("color: normal_radius_mm must be finite and at most 100");
+  if (!(normal_radius_lines > 0 && normal_radius_lines <= 50))
+    return InvalidArgumentError("color: normal_radius_lines in (0, 50]");
   return Status::Ok();
 }
 
@@ -138,6 +213,32 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   for (int v = 0; v < wanted; ++v) {
     const int index = static_cast<int>(static_cast<int64_t>(v) * steps / wanted);
     if (indices.empty() || indices.back() != index) indices.push_back(index);
+  }
+
+  const int threads = options.threads > 0
+                          ? options.threads
+                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  // Shading normals (color.h).
+  std::vector<Eigen::Vector3f> normals;
+  if (options.normal_radius_mm >= 0) {
+    std::vector<Eigen::Vector3d> positions(cloud->size());
+    for (size_t i = 0; i < cloud->size(); ++i) positions[i] = cloud->points[i].position_in_table.cast<double>();
+    open3d::geometry::KDTreeFlann tree;
+    tree.SetMatrixData(Eigen::Map<const Eigen::MatrixXd>(positions.data()->data(), 3,
+                                                          static_cast<Eigen::Index>(positions.size())));
+    double radius = options.normal_radius_mm;
+    if (radius == 0) radius = options.normal_radius_lines * LineSpacing(*cloud, tree, positions);
+    if (radius > 0) {
+      normals = PcaNormals(*cloud, radius, threads, tree, positions);
+      summary->normal_radius_mm = radius;
+    }
+  }
+  if (normals.empty()) {
+    normals.resize(cloud->size());
+    for (size_t i = 0; i < cloud->size(); ++i) {
+      const Eigen::Vector3f& own = cloud->points[i].normal;
+      normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
+    }
   }
 
   // Observations, view by view (each thread its own natural frame and depth buffer).
@@ -165,12 +266,9 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       views[v].angle = angle;
       views[v].cam_from_table_rotation = rig.WorldFromCamAtAngle(angle).linear().transpose().cast<float>();
       have_view[v] = 1;
-      Observe(rig, *cloud, image, angle, static_cast<uint16_t>(v), options, &per_view[v]);
+      Observe(rig, *cloud, normals, image, angle, static_cast<uint16_t>(v), options, &per_view[v]);
     }
   };
-  const int threads = options.threads > 0
-                          ? options.threads
-                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   std::vector<std::thread> pool;
   for (int i = 1; i < std::min<int>(threads, static_cast<int>(indices.size())); ++i)
     pool.emplace_back(worker);
@@ -199,7 +297,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     }
   }
   auto normal_in_cam = [&](const Observation& o) -> Eigen::Vector3f {
-    return views[o.view].cam_from_table_rotation * cloud->points[o.point].normal.normalized();
+    return views[o.view].cam_from_table_rotation * normals[o.point];
   };
   const float shadow_ratio = static_cast<float>(options.shadow_ratio);
   const bool truth_shadows = static_cast<bool>(options.truth_visibility);
@@ -374,7 +472,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     if (color[i].x() >= 0) continue;
     const cloud::CloudPoint& p = cloud->points[i];
     const Eigen::Matrix3f r = rig.WorldFromCamAtAngle(rate * p.step).linear().transpose().cast<float>();
-    const float s = p.normal.squaredNorm() > 0.5f ? Shading(r * p.normal.normalized(), lamp) : 1.0f;
+    const float s = normals[i].squaredNorm() > 0.5f ? Shading(r * normals[i], lamp) : 1.0f;
     color[i] = Eigen::Vector3f(p.color[0], p.color[1], p.color[2]) / s;
   }
   // One fixed factor, the same for every scan under the same lamp and exposure (so that placements merge

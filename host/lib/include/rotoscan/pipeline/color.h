@@ -26,6 +26,12 @@
 // are then the views' average, still the same whatever step or laser found the point. A calibrated lamp
 // (ColorOptions::lamp_in_cam, `process --lamp`) skips the estimate.
 //
+// Normals: the scan grid's normals (cloud.h) come from a point's neighbours on its own and the next laser
+// lines; their noise flattens the shading they should explain. The shading uses normals refit by PCA over
+// every cloud point within a radius that follows the scan's spacing between laser lines (the smallest
+// eigenvector of the neighbourhood's covariance, turned to the side of the point's own normal, which
+// faces its camera); the cloud's own normals are left as they were.
+//
 // Each point's color is then the least-squares albedo over its views, weighted by how squarely it faces
 // the camera, with its cast-shadow views dropped, times one fixed factor, 1 + |L|: the brightness the
 // albedo has on a surface facing the lamp (clipped at 255). The factor depends on nothing but the lamp, so
@@ -57,6 +63,10 @@ struct ColorOptions {
   int zbuffer_splat_cells = 1;                 // each point covers (2k + 1)^2 cells
   int saturation = 250;                        // 8-bit level at which a channel counts as saturated
   bool remove_shading = true;                  // estimate L and divide the shading out
+  // Shading normals (the file comment): PCA over the cloud's points within this radius (mm) of each point;
+  // 0: normal_radius_lines x the scan's own spacing between laser lines; < 0: the cloud's own normals.
+  double normal_radius_mm = 0;
+  double normal_radius_lines = 4.0;
   std::optional<Eigen::Vector3d> lamp_in_cam;  // a calibrated L (see the file comment); skips the estimate
   double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no shadow test)
   // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
@@ -75,6 +85,7 @@ struct ColorSummary {
   size_t points_colored = 0;  // points with at least one view (others keep their color)
   double mean_views_per_point = 0;
   bool shading_removed = false;
+  double normal_radius_mm = 0;  // the PCA radius of the shading normals (0: the cloud's own normals)
   Eigen::Vector3d lamp_in_cam = Eigen::Vector3d::Zero();  // L (direction times diffuse / ambient)
   double shadow_fraction = 0;                             // observations dropped as cast shadows
   std::string note;                                       // why the shading was not removed, when it was not
