@@ -340,7 +340,13 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   if (options.lamp_in_cam) {
     lamp = options.lamp_in_cam->cast<float>();
     summary->shading_removed = options.remove_shading;
+    summary->lamp_source = "given";
+  } else if (options.use_calibrated_lamp && rig.lamp_in_cam) {
+    lamp = rig.lamp_in_cam->cast<float>();
+    summary->shading_removed = options.remove_shading;
+    summary->lamp_source = "calibrated";
   } else if (options.remove_shading) {
+    summary->lamp_source = "estimated";
     std::vector<size_t> sample;
     for (size_t i = 0; i < n; ++i) {
       if (offset[i + 1] - offset[i] >= 6) sample.push_back(i);
@@ -502,8 +508,11 @@ std::string FormatColorSummary(const ColorSummary& s) {
     const double strength = s.lamp_in_cam.norm();
     const Eigen::Vector3d d =
         strength > 0 ? Eigen::Vector3d(s.lamp_in_cam / strength) : Eigen::Vector3d::Zero();
-    out << "lamp shading removed (lamp direction in the camera frame " << d.x() << " " << d.y() << " "
-        << d.z() << ", diffuse/ambient " << strength << ")\n";
+    out << "lamp shading removed (" << s.lamp_source << " lamp: direction in the camera frame " << d.x() << " "
+        << d.y() << " " << d.z() << ", diffuse/ambient " << strength << "; shading normals "
+        << (s.normal_radius_mm > 0 ? "PCA over " + std::to_string(s.normal_radius_mm).substr(0, 4) + " mm"
+                                   : std::string("the cloud's"))
+        << ")\n";
   } else {
     out << "shading kept" << (s.note.empty() ? std::string() : " (" + s.note + ")") << "\n";
   }

@@ -24,7 +24,8 @@
 // and 3 strengths, then refined by a pattern search. When that is not well posed (too few points with
 // several views, or a lamp explaining less than 10 % of what a constant shading leaves), L = 0: the colors
 // are then the views' average, still the same whatever step or laser found the point. A calibrated lamp
-// (ColorOptions::lamp_in_cam, `process --lamp`) skips the estimate.
+// (the rig's, from `rotoscan calibrate lamp`, pipeline/lamp.h) or a given one (ColorOptions::lamp_in_cam,
+// `process --lamp`) skips the estimate.
 //
 // Normals: the scan grid's normals (cloud.h) come from a point's neighbours on its own and the next laser
 // lines; their noise flattens the shading they should explain. The shading uses normals refit by PCA over
@@ -67,7 +68,8 @@ struct ColorOptions {
   // 0: normal_radius_lines x the scan's own spacing between laser lines; < 0: the cloud's own normals.
   double normal_radius_mm = 0;
   double normal_radius_lines = 4.0;
-  std::optional<Eigen::Vector3d> lamp_in_cam;  // a calibrated L (see the file comment); skips the estimate
+  std::optional<Eigen::Vector3d> lamp_in_cam;  // a given L (see the file comment); skips the estimate
+  bool use_calibrated_lamp = true;             // the rig's calibrated lamp (Rig::lamp_in_cam) when it has one
   double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no shadow test)
   // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
   // called from several threads for every candidate observation (point index, the view's table angle)
@@ -87,6 +89,7 @@ struct ColorSummary {
   bool shading_removed = false;
   double normal_radius_mm = 0;  // the PCA radius of the shading normals (0: the cloud's own normals)
   Eigen::Vector3d lamp_in_cam = Eigen::Vector3d::Zero();  // L (direction times diffuse / ambient)
+  std::string lamp_source;  // "given", "calibrated" (the rig's) or "estimated" (from the scan)
   double shadow_fraction = 0;                             // observations dropped as cast shadows
   std::string note;                                       // why the shading was not removed, when it was not
 };
