@@ -192,7 +192,7 @@ int main(int argc, char** argv) {
 
   auto run = [&](const std::string& name, const std::vector<Eigen::Vector3f>* replace, bool true_visibility,
                  bool estimated_lamp, double shadow_ratio, double normal_radius_mm = -1,
-                 double normal_radius_lines = 2) {
+                 double normal_radius_lines = 2, bool shadow_map = false, double shadow_margin = 2.0) {
     cloud::PointCloud cloud = base->cloud;
     if (replace != nullptr) {
       for (size_t i = 0; i < cloud.size(); ++i) cloud.points[i].normal = (*replace)[i];
@@ -202,6 +202,8 @@ int main(int argc, char** argv) {
     color.shadow_ratio = shadow_ratio;
     color.normal_radius_mm = normal_radius_mm;
     color.normal_radius_lines = normal_radius_lines;
+    color.shadow_map = shadow_map;
+    color.shadow_margin_mm = shadow_margin;
     if (true_visibility) {
       normals = replace != nullptr ? replace : &t.smooth;
       color.truth_visibility = visibility;
@@ -223,15 +225,18 @@ int main(int argc, char** argv) {
   };
   int rc = 0;
   const bool pca_only = argc > 4 && std::string(argv[4]) == "--pca";
-  for (const double lines : {2.0, 3.0, 4.0, 5.0, 6.0, 8.0}) {
+  for (const double lines : {3.0, 4.0, 5.0}) {
     rc |= run("PCA normals, radius " + std::to_string(lines).substr(0, 3) + " x line spacing", nullptr, false,
               false, 0.6, 0, lines);
   }
-  for (const double lines : {3.0, 4.0, 6.0}) {
-    rc |= run("PCA normals, radius " + std::to_string(lines).substr(0, 3) + " x lines, lamp estimated", nullptr,
-              false, true, 0.6, 0, lines);
+  rc |= run("PCA 4 x lines, lamp estimated", nullptr, false, true, 0.6, 0, 4.0);
+  rc |= run("PCA 4 x lines + true visibility", nullptr, true, false, 0.6, 0, 4.0);
+  for (const double margin : {1.0, 2.0, 3.0, 4.0, 5.0}) {
+    rc |= run("PCA 4 x lines, shadow map " + std::to_string(margin).substr(0, 3) + " mm + ratio test", nullptr,
+              false, false, 0.6, 0, 4.0, true, margin);
   }
-  rc |= run("PCA normals 4 x lines + true visibility", nullptr, true, false, 0.6, 0, 4.0);
+  rc |= run("PCA 4 x lines, shadow map 2 mm, no ratio test", nullptr, false, false, 0.0, 0, 4.0, true, 2.0);
+  rc |= run("PCA 4 x lines, shadow map 2 mm + ratio 0.5", nullptr, false, false, 0.5, 0, 4.0, true, 2.0);
   if (pca_only) return rc;
   rc |= run("grid normals (process --lamp TRUE)", nullptr, false, false, 0.6);
   rc |= run("grid normals, no shadow test", nullptr, false, false, 0.0);

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <thread>
@@ -28,7 +29,7 @@ struct Observation {
   uint16_t view = 0;
   std::array<uint8_t, 3> rgb{};
   float cos_camera = 0;
-  bool lamp_blocked = false;  // ColorOptions::truth_visibility's answer (diagnostics)
+  bool lamp_blocked = false;  // in the cloud's cast shadow (the shadow map, or truth_visibility's answer)
 };
 
 struct View {
@@ -44,10 +45,13 @@ float Shading(const Eigen::Vector3f& normal_in_cam, const Eigen::Vector3f& lamp)
   return 1.0f + std::max(0.0f, normal_in_cam.dot(lamp));
 }
 
-// One view: every point's observation there (facing, inside, unoccluded, unsaturated).
+// One view: every point's observation there (facing, inside, unoccluded, unsaturated); with a known lamp
+// (`lamp_in_cam` not null), each flagged when the cloud casts a shadow on it (a shadow map: the cloud seen
+// from the far lamp, an orthographic view along its direction in cells of `shadow_cell_mm`, keeping the
+// depth nearest the lamp; shadowed when something lies more than shadow_margin_mm nearer the lamp).
 void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std::vector<Eigen::Vector3f>& normals,
              const cv::Mat& natural, double angle, uint16_t view, const ColorOptions& options,
-             std::vector<Observation>* out) {
+             const Eigen::Vector3f* lamp_in_cam, double shadow_cell_mm, std::vector<Observation>* out) {
   const geometry::CameraModel& camera = rig.camera;
   const Eigen::Isometry3d cam_from_table = rig.WorldFromCamAtAngle(angle).inverse();
   const Eigen::Matrix3f r = cam_from_table.linear().cast<float>();
@@ -81,6 +85,40 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std
   }
   const Eigen::Vector3f camera_in_table = -(r.transpose() * t);
   const float occlusion = static_cast<float>(options.occlusion_mm);
+  // The shadow map (function comment).
+  std::vector<float> lamp_depth;
+  Eigen::Vector3f toward_lamp = Eigen::Vector3f::Zero(), su = Eigen::Vector3f::Zero(), sv = Eigen::Vector3f::Zero();
+  float u0 = 0, v0 = 0;
+  int sw = 0, sh = 0;
+  const float scell = static_cast<float>(shadow_cell_mm);
+  const bool use_map = lamp_in_cam != nullptr && lamp_in_cam->norm() > 0 && options.shadow_map &&
+                       !options.truth_visibility && cloud.size() > 0;
+  if (use_map) {
+    toward_lamp = (r.transpose() * *lamp_in_cam).normalized();  // table frame
+    su = toward_lamp.unitOrthogonal();
+    sv = toward_lamp.cross(su);
+    float u1 = -std::numeric_limits<float>::infinity(), v1 = u1;
+    u0 = v0 = std::numeric_limits<float>::infinity();
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const float u = su.dot(p.position_in_table), v = sv.dot(p.position_in_table);
+      u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+    }
+    sw = std::min(8192, static_cast<int>((u1 - u0) / scell) + 1);
+    sh = std::min(8192, static_cast<int>((v1 - v0) / scell) + 1);
+    lamp_depth.assign(static_cast<size_t>(sw) * static_cast<size_t>(sh), -std::numeric_limits<float>::infinity());
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const int cx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
+      const int cy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
+      const float d = toward_lamp.dot(p.position_in_table);
+      for (int y = std::max(0, cy - 1); y <= std::min(sh - 1, cy + 1); ++y) {
+        for (int x = std::max(0, cx - 1); x <= std::min(sw - 1, cx + 1); ++x) {
+          float& m = lamp_depth[static_cast<size_t>(y) * static_cast<size_t>(sw) + static_cast<size_t>(x)];
+          m = std::max(m, d);
+        }
+      }
+    }
+  }
+  const float shadow_margin = static_cast<float>(options.shadow_margin_mm);
   for (size_t i = 0; i < cloud.size(); ++i) {
     if (z[i] < 0) continue;
     const cloud::CloudPoint& p = cloud.points[i];
@@ -98,6 +136,12 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std
       if (z[i] >
           depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
         continue;  // hidden by a nearer surface
+      }
+      if (use_map) {
+        const int sx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
+        const int sy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
+        lamp_blocked = lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
+                       toward_lamp.dot(p.position_in_table) + shadow_margin;
       }
     }
     const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
@@ -188,6 +232,8 @@ Status ColorOptions::Check() const {
     return InvalidArgumentError("color: zbuffer_splat_cells in [0, 8]");
   }
   if (!(shadow_ratio >= 0 && shadow_ratio < 1)) return InvalidArgumentError("color: shadow_ratio in [0, 1)");
+  if (!(shadow_margin_mm > 0 && shadow_margin_mm < 100))
+    return InvalidArgumentError("color: shadow_margin_mm in (0, 100)");
   if (saturation < 1 || saturation > 256) return InvalidArgumentError("color: saturation in [1, 256]");
   if (lamp_in_cam && (!lamp_in_cam->allFinite() || lamp_in_cam->norm() > 1e3)) {
     return InvalidArgumentError("color: the lamp vector must be finite (and below 1e3)");
@@ -220,14 +266,16 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   // Shading normals (color.h).
   std::vector<Eigen::Vector3f> normals;
+  double line_spacing = 0;
   if (options.normal_radius_mm >= 0) {
     std::vector<Eigen::Vector3d> positions(cloud->size());
     for (size_t i = 0; i < cloud->size(); ++i) positions[i] = cloud->points[i].position_in_table.cast<double>();
     open3d::geometry::KDTreeFlann tree;
     tree.SetMatrixData(Eigen::Map<const Eigen::MatrixXd>(positions.data()->data(), 3,
                                                           static_cast<Eigen::Index>(positions.size())));
+    line_spacing = LineSpacing(*cloud, tree, positions);
     double radius = options.normal_radius_mm;
-    if (radius == 0) radius = options.normal_radius_lines * LineSpacing(*cloud, tree, positions);
+    if (radius == 0) radius = options.normal_radius_lines * line_spacing;
     if (radius > 0) {
       normals = PcaNormals(*cloud, radius, threads, tree, positions);
       summary->normal_radius_mm = radius;
@@ -240,6 +288,16 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
     }
   }
+
+  // A lamp known before the views are read (given or calibrated) gives each view a shadow map.
+  std::optional<Eigen::Vector3f> known_lamp;
+  if (options.lamp_in_cam) {
+    known_lamp = options.lamp_in_cam->cast<float>();
+  } else if (options.use_calibrated_lamp && rig.lamp_in_cam) {
+    known_lamp = rig.lamp_in_cam->cast<float>();
+  }
+  const Eigen::Vector3f* map_lamp = known_lamp && options.remove_shading ? &*known_lamp : nullptr;
+  const double shadow_cell = line_spacing > 0 ? line_spacing : 0.5;
 
   // Observations, view by view (each thread its own natural frame and depth buffer).
   std::vector<std::vector<Observation>> per_view(indices.size());
@@ -266,7 +324,8 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       views[v].angle = angle;
       views[v].cam_from_table_rotation = rig.WorldFromCamAtAngle(angle).linear().transpose().cast<float>();
       have_view[v] = 1;
-      Observe(rig, *cloud, normals, image, angle, static_cast<uint16_t>(v), options, &per_view[v]);
+      Observe(rig, *cloud, normals, image, angle, static_cast<uint16_t>(v), options, map_lamp, shadow_cell,
+              &per_view[v]);
     }
   };
   std::vector<std::thread> pool;
@@ -301,6 +360,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   };
   const float shadow_ratio = static_cast<float>(options.shadow_ratio);
   const bool truth_shadows = static_cast<bool>(options.truth_visibility);
+  const bool map_shadows = map_lamp != nullptr && options.shadow_map && !truth_shadows;
   // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than shadow_ratio x
   // the model against a reference taken high in the views' range (the 75th percentile of I / shading: cast
   // shadows only darken, so the bright views are the lit truth even when most views are shadowed) are
@@ -320,7 +380,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       const float reference = ratios[at];
       for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
         const float s = Shading(normal_in_cam(obs[k]), lamp);
-        (*shadow)[k] = Luminance(obs[k].rgb) < shadow_ratio * reference * s;
+        (*shadow)[k] = Luminance(obs[k].rgb) < shadow_ratio * reference * s || (map_shadows && obs[k].lamp_blocked);
       }
     }
     for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {

@@ -94,7 +94,8 @@ Result<LampCalibration> CalibrateLamp(const std::filesystem::path& bundle_dir, c
       if (residual[i] <= std::min(0.3, std::max(3 * mad, 0.02))) kept.push_back(points[i]);
     }
   }
-  if (kept.size() < 100 || !FitSphere(kept, &sphere) || sphere.radius < 2 || sphere.radius > 200) {
+  if (kept.size() < 100 || 10 * kept.size() < 8 * points.size() || !FitSphere(kept, &sphere) ||
+      sphere.radius < 2 || sphere.radius > 200) {
     return FailedPreconditionError(bundle_dir.string() + ": no sphere in the laser points (" +
                                    std::to_string(kept.size()) + " of " + std::to_string(points.size()) +
                                    " points above the table lie on one): lamp calibration needs a scan of a "

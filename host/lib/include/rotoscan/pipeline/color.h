@@ -70,7 +70,9 @@ struct ColorOptions {
   double normal_radius_lines = 4.0;
   std::optional<Eigen::Vector3d> lamp_in_cam;  // a given L (see the file comment); skips the estimate
   bool use_calibrated_lamp = true;             // the rig's calibrated lamp (Rig::lamp_in_cam) when it has one
-  double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no shadow test)
+  double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no such test)
+  bool shadow_map = true;     // with a known lamp, also the cloud's own cast shadows (a shadow map per view)
+  double shadow_margin_mm = 4.0;  // shadowed when the cloud lies this much nearer the lamp at the same place
   // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
   // called from several threads for every candidate observation (point index, the view's table angle)
   // and returns a TruthVisibility; it replaces the depth-buffer occlusion test and the cast-shadow test.

@@ -7,7 +7,7 @@
 //
 // Method: the bundle is processed (laser points only, no color) and a sphere is fitted to the points above
 // the table (algebraic least squares, |p|^2 = 2 c . p + r^2 - |c|^2, then points further than 3 MADs or
-// 0.3 mm from it dropped and the fit repeated). In each of up to `max_frames` natural frames, every pixel
+// 0.3 mm from it dropped and the fit repeated; at least 80 % of the points must stay on it). In each of up to `max_frames` natural frames, every pixel
 // whose ray meets the sphere gives the sphere's normal there, n = (p - c) / r in the camera frame, and its
 // luminance. Pixels near the sphere's outline (the normal at less than `min_cos_view` to the ray: the
 // image blur mixes them with the background) and saturated pixels are left out. Then
