@@ -47,9 +47,10 @@ struct Truth {
 Truth ClosestTruth(const bundle::TruthMesh& mesh, const cloud::PointCloud& cloud) {
   std::vector<Eigen::Vector3f> vertex_normal(mesh.vertices.size(), Eigen::Vector3f::Zero());
   for (const Eigen::Vector3i& f : mesh.faces) {
-    const Eigen::Vector3f n = (mesh.vertices[static_cast<size_t>(f[1])] - mesh.vertices[static_cast<size_t>(f[0])])
-                                  .cross(mesh.vertices[static_cast<size_t>(f[2])] -
-                                         mesh.vertices[static_cast<size_t>(f[0])]);  // area-weighted
+    const Eigen::Vector3f n =
+        (mesh.vertices[static_cast<size_t>(f[1])] - mesh.vertices[static_cast<size_t>(f[0])])
+            .cross(mesh.vertices[static_cast<size_t>(f[2])] -
+                   mesh.vertices[static_cast<size_t>(f[0])]);  // area-weighted
     for (int k = 0; k < 3; ++k) vertex_normal[static_cast<size_t>(f[k])] += n;
   }
   for (Eigen::Vector3f& n : vertex_normal) n.normalize();
@@ -60,13 +61,14 @@ Truth ClosestTruth(const bundle::TruthMesh& mesh, const cloud::PointCloud& cloud
     for (int k = 0; k < 3; ++k) faces.push_back(static_cast<uint32_t>(f[k]));
   }
   for (const cloud::CloudPoint& p : cloud.points) {
-    queries.insert(queries.end(), {p.position_in_table.x(), p.position_in_table.y(), p.position_in_table.z()});
+    queries.insert(queries.end(),
+                   {p.position_in_table.x(), p.position_in_table.y(), p.position_in_table.z()});
   }
   open3d::t::geometry::RaycastingScene scene;
   scene.AddTriangles(o3c::Tensor(vertices, {static_cast<int64_t>(mesh.vertices.size()), 3}, o3c::Float32),
                      o3c::Tensor(faces, {static_cast<int64_t>(mesh.faces.size()), 3}, o3c::UInt32));
-  auto result = scene.ComputeClosestPoints(
-      o3c::Tensor(queries, {static_cast<int64_t>(cloud.size()), 3}, o3c::Float32));
+  auto result =
+      scene.ComputeClosestPoints(o3c::Tensor(queries, {static_cast<int64_t>(cloud.size()), 3}, o3c::Float32));
   const o3c::Tensor points = result["points"].Contiguous(), ids = result["primitive_ids"].Contiguous(),
                     uvs = result["primitive_uvs"].Contiguous();
   const float* pp = points.GetDataPtr<float>();
@@ -76,12 +78,14 @@ Truth ClosestTruth(const bundle::TruthMesh& mesh, const cloud::PointCloud& cloud
   for (size_t i = 0; i < cloud.size(); ++i) {
     const Eigen::Vector3i& f = mesh.faces[id[i]];
     const Eigen::Vector3f& a = mesh.vertices[static_cast<size_t>(f[0])];
-    Eigen::Vector3f flat =
-        (mesh.vertices[static_cast<size_t>(f[1])] - a).cross(mesh.vertices[static_cast<size_t>(f[2])] - a).normalized();
+    Eigen::Vector3f flat = (mesh.vertices[static_cast<size_t>(f[1])] - a)
+                               .cross(mesh.vertices[static_cast<size_t>(f[2])] - a)
+                               .normalized();
     const float u = uv[2 * i], v = uv[2 * i + 1];
-    Eigen::Vector3f smooth = ((1 - u - v) * vertex_normal[static_cast<size_t>(f[0])] +
-                              u * vertex_normal[static_cast<size_t>(f[1])] + v * vertex_normal[static_cast<size_t>(f[2])])
-                                 .normalized();
+    Eigen::Vector3f smooth =
+        ((1 - u - v) * vertex_normal[static_cast<size_t>(f[0])] +
+         u * vertex_normal[static_cast<size_t>(f[1])] + v * vertex_normal[static_cast<size_t>(f[2])])
+            .normalized();
     const Eigen::Vector3f& own = cloud.points[i].normal;
     if (flat.dot(own) < 0) flat = -flat;
     if (smooth.dot(own) < 0) smooth = -smooth;
@@ -156,7 +160,8 @@ int main(int argc, char** argv) {
   if (!rig.ok()) return Fail(rig.status());
   auto scene = sim::LoadScene(scene_path);
   if (!scene.ok()) return Fail(scene.status());
-  const Eigen::Vector3d true_lamp = scene->diffuse / scene->ambient * scene->light_direction_in_cam.normalized();
+  const Eigen::Vector3d true_lamp =
+      scene->diffuse / scene->ambient * scene->light_direction_in_cam.normalized();
   auto truth = pipeline::LoadTruthSurface(bundle, scene_path);
   if (!truth.ok()) return Fail(truth.status());
   auto views = pipeline::LoadEvaluationViews(bundle);
@@ -180,7 +185,8 @@ int main(int argc, char** argv) {
   auto visibility = [&](size_t i, double angle) {
     const Eigen::Isometry3d table_from_cam = rig->WorldFromCamAtAngle(angle);
     const Eigen::Vector3f camera = table_from_cam.translation().cast<float>();
-    const Eigen::Vector3f light = (table_from_cam.linear() * scene->light_direction_in_cam).normalized().cast<float>();
+    const Eigen::Vector3f light =
+        (table_from_cam.linear() * scene->light_direction_in_cam).normalized().cast<float>();
     const Eigen::Vector3f from = t.point[i] + 0.01f * (*normals)[i];
     int v = pipeline::kVisibleLit;
     const Eigen::Vector3f to_camera = camera - from;
@@ -216,10 +222,11 @@ int main(int argc, char** argv) {
     auto report = pipeline::EvaluateCloud(cloud, *truth, *views, evaluate);
     if (!report.ok()) return Fail(report.status());
     const pipeline::ColorStats& c = report->color;
-    std::printf("%-52s mean %6.2f levels, within 10: %5.1f %%  (per-point gain %.2f; normals r %.2f mm; lamp %.2f %.2f %.2f)\n",
-                name.c_str(), c.mean_abs_error_all, 100 * c.within_tolerance, c.mean_abs_error_per_point_gain,
-                summary.normal_radius_mm,
-                summary.lamp_in_cam.x(), summary.lamp_in_cam.y(), summary.lamp_in_cam.z());
+    std::printf(
+        "%-52s mean %6.2f levels, within 10: %5.1f %%  (per-point gain %.2f; normals r %.2f mm; lamp %.2f "
+        "%.2f %.2f)\n",
+        name.c_str(), c.mean_abs_error_all, 100 * c.within_tolerance, c.mean_abs_error_per_point_gain,
+        summary.normal_radius_mm, summary.lamp_in_cam.x(), summary.lamp_in_cam.y(), summary.lamp_in_cam.z());
     std::fflush(stdout);
     return 0;
   };
@@ -232,8 +239,8 @@ int main(int argc, char** argv) {
   rc |= run("PCA 4 x lines, lamp estimated", nullptr, false, true, 0.6, 0, 4.0);
   rc |= run("PCA 4 x lines + true visibility", nullptr, true, false, 0.6, 0, 4.0);
   for (const double margin : {1.0, 2.0, 3.0, 4.0, 5.0}) {
-    rc |= run("PCA 4 x lines, shadow map " + std::to_string(margin).substr(0, 3) + " mm + ratio test", nullptr,
-              false, false, 0.6, 0, 4.0, true, margin);
+    rc |= run("PCA 4 x lines, shadow map " + std::to_string(margin).substr(0, 3) + " mm + ratio test",
+              nullptr, false, false, 0.6, 0, 4.0, true, margin);
   }
   rc |= run("PCA 4 x lines, shadow map 2 mm, no ratio test", nullptr, false, false, 0.0, 0, 4.0, true, 2.0);
   rc |= run("PCA 4 x lines, shadow map 2 mm + ratio 0.5", nullptr, false, false, 0.5, 0, 4.0, true, 2.0);

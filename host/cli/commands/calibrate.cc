@@ -132,7 +132,8 @@ int RunCalibrateLamp(const CalibrateLampOptions& options, const Context& context
   }
   Result<geometry::Rig> rig = geometry::ReadRigYaml(options.calib);
   if (!rig.ok()) return ReportStatus(context, command, rig.status());
-  Result<pipeline::LampCalibration> lamp = pipeline::CalibrateLamp(options.bundle, *rig, {}, context.progress);
+  Result<pipeline::LampCalibration> lamp =
+      pipeline::CalibrateLamp(options.bundle, *rig, {}, context.progress);
   if (!lamp.ok()) return ReportStatus(context, command, lamp.status());
   if (out != options.calib) {
     Result<std::string> text = ReadFile(options.calib);
@@ -181,14 +182,16 @@ void RegisterCalibrate(CLI::App& app, const Context& context, int* exit_code) {
 
   auto lamp_options = std::make_shared<CalibrateLampOptions>();
   CLI::App* lamp = sub->add_subcommand(
-      "lamp", "The natural frames' lamp (direction and diffuse/ambient, camera frame) from a scan of a matte white "
-              "sphere; written into the calibration, where process uses it");
+      "lamp",
+      "The natural frames' lamp (direction and diffuse/ambient, camera frame) from a scan of a matte white "
+      "sphere; written into the calibration, where process uses it");
   lamp->add_option("bundle", lamp_options->bundle, "scan bundle of the sphere (data/scenes/lamp-sphere.json)")
       ->required();
   lamp->add_option("--calib", lamp_options->calib, "the rig's calibration (read, and updated unless --out)")
       ->capture_default_str();
   lamp->add_option("--out", lamp_options->out, "write the calibration with the lamp here instead");
-  lamp->callback([lamp_options, &context, exit_code] { *exit_code = RunCalibrateLamp(*lamp_options, context); });
+  lamp->callback(
+      [lamp_options, &context, exit_code] { *exit_code = RunCalibrateLamp(*lamp_options, context); });
 }
 
 }  // namespace rotoscan::cli

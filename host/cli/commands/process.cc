@@ -144,9 +144,10 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
                   "the natural frame of the point's own step")
       ->capture_default_str();
   CLI::Option* lamp =
-      sub->add_option("--lamp", o.lamp,
-                      "a known lamp instead of the calibration's or the estimate: x,y,z in the camera frame, the "
-                      "direction to the lamp times its diffuse / ambient ratio (pipeline/color.h)")
+      sub->add_option(
+             "--lamp", o.lamp,
+             "a known lamp instead of the calibration's or the estimate: x,y,z in the camera frame, the "
+             "direction to the lamp times its diffuse / ambient ratio (pipeline/color.h)")
           ->delimiter(',')
           ->expected(3);
   sub->add_flag("--estimate-lamp", o.estimate_lamp,

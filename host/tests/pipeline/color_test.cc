@@ -110,11 +110,11 @@ TEST(ColorTest, ViewsDivideOutTheLampAndAgreeAcrossLasers) {
   // Measured 8.92 levels, 83.5 % within 10 (36 steps; the demo's 200 steps: README "Placements and color").
   EXPECT_LT(with_lamp->color.mean_abs_error_all, 11.0);
   EXPECT_GT(with_lamp->color.within_tolerance, 0.75);
-  std::printf("color error: own step %.2f levels, views with the estimated lamp %.2f (%.1f %% within 10), with "
-              "the calibrated lamp %.2f (%.1f %%)\n",
-              before->color.mean_abs_error_all, after->color.mean_abs_error_all,
-              100 * after->color.within_tolerance, with_lamp->color.mean_abs_error_all,
-              100 * with_lamp->color.within_tolerance);
+  std::printf(
+      "color error: own step %.2f levels, views with the estimated lamp %.2f (%.1f %% within 10), with "
+      "the calibrated lamp %.2f (%.1f %%)\n",
+      before->color.mean_abs_error_all, after->color.mean_abs_error_all, 100 * after->color.within_tolerance,
+      with_lamp->color.mean_abs_error_all, 100 * with_lamp->color.within_tolerance);
 
   ColorOptions bad;
   bad.max_views = 0;

@@ -73,7 +73,8 @@ TEST(LampTest, CalibratedFromAWhiteSphereMatchesTheRenderersLamp) {
 TEST(LampTest, NoSphereIsAClearError) {
   testing::ScratchDir dir;
   auto scene = sim::ParseScene(
-      R"({"preset": "machine_vision", "objects": [{"type": "box", "size_mm": [30, 30, 30]}]})", ".", "box.json");
+      R"({"preset": "machine_vision", "objects": [{"type": "box", "size_mm": [30, 30, 30]}]})", ".",
+      "box.json");
   ASSERT_TRUE(scene.ok()) << scene.status().ToString();
   sim::SimulateOptions simulate;
   simulate.out = dir / "box";

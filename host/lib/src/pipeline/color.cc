@@ -13,8 +13,8 @@
 #include <sstream>
 #include <thread>
 
-#include <Eigen/Eigenvalues>
 #include <open3d/geometry/KDTreeFlann.h>
+#include <Eigen/Eigenvalues>
 #include <opencv2/imgproc.hpp>
 
 #include "rotoscan/core/check.h"
@@ -49,9 +49,10 @@ float Shading(const Eigen::Vector3f& normal_in_cam, const Eigen::Vector3f& lamp)
 // (`lamp_in_cam` not null), each flagged when the cloud casts a shadow on it (a shadow map: the cloud seen
 // from the far lamp, an orthographic view along its direction in cells of `shadow_cell_mm`, keeping the
 // depth nearest the lamp; shadowed when something lies more than shadow_margin_mm nearer the lamp).
-void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std::vector<Eigen::Vector3f>& normals,
-             const cv::Mat& natural, double angle, uint16_t view, const ColorOptions& options,
-             const Eigen::Vector3f* lamp_in_cam, double shadow_cell_mm, std::vector<Observation>* out) {
+void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud,
+             const std::vector<Eigen::Vector3f>& normals, const cv::Mat& natural, double angle, uint16_t view,
+             const ColorOptions& options, const Eigen::Vector3f* lamp_in_cam, double shadow_cell_mm,
+             std::vector<Observation>* out) {
   const geometry::CameraModel& camera = rig.camera;
   const Eigen::Isometry3d cam_from_table = rig.WorldFromCamAtAngle(angle).inverse();
   const Eigen::Matrix3f r = cam_from_table.linear().cast<float>();
@@ -87,7 +88,8 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std
   const float occlusion = static_cast<float>(options.occlusion_mm);
   // The shadow map (function comment).
   std::vector<float> lamp_depth;
-  Eigen::Vector3f toward_lamp = Eigen::Vector3f::Zero(), su = Eigen::Vector3f::Zero(), sv = Eigen::Vector3f::Zero();
+  Eigen::Vector3f toward_lamp = Eigen::Vector3f::Zero(), su = Eigen::Vector3f::Zero(),
+                  sv = Eigen::Vector3f::Zero();
   float u0 = 0, v0 = 0;
   int sw = 0, sh = 0;
   const float scell = static_cast<float>(shadow_cell_mm);
@@ -105,7 +107,8 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std
     }
     sw = std::min(8192, static_cast<int>((u1 - u0) / scell) + 1);
     sh = std::min(8192, static_cast<int>((v1 - v0) / scell) + 1);
-    lamp_depth.assign(static_cast<size_t>(sw) * static_cast<size_t>(sh), -std::numeric_limits<float>::infinity());
+    lamp_depth.assign(static_cast<size_t>(sw) * static_cast<size_t>(sh),
+                      -std::numeric_limits<float>::infinity());
     for (const cloud::CloudPoint& p : cloud.points) {
       const int cx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
       const int cy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
@@ -140,8 +143,9 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std
       if (use_map) {
         const int sx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
         const int sy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
-        lamp_blocked = lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
-                       toward_lamp.dot(p.position_in_table) + shadow_margin;
+        lamp_blocked =
+            lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
+            toward_lamp.dot(p.position_in_table) + shadow_margin;
       }
     }
     const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
@@ -149,7 +153,6 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const std
     out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera, lamp_blocked});
   }
 }
-
 
 // The scan's spacing between laser lines: the median, over a sample of points, of the distance to the
 // nearest point of another line (another step or laser). 0 when no point has one among its 48 nearest.
@@ -171,7 +174,8 @@ double LineSpacing(const cloud::PointCloud& cloud, const open3d::geometry::KDTre
     }
   }
   if (spacing.empty()) return 0;
-  std::nth_element(spacing.begin(), spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2), spacing.end());
+  std::nth_element(spacing.begin(), spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2),
+                   spacing.end());
   return spacing[spacing.size() / 2];
 }
 
@@ -269,10 +273,11 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   double line_spacing = 0;
   if (options.normal_radius_mm >= 0) {
     std::vector<Eigen::Vector3d> positions(cloud->size());
-    for (size_t i = 0; i < cloud->size(); ++i) positions[i] = cloud->points[i].position_in_table.cast<double>();
+    for (size_t i = 0; i < cloud->size(); ++i)
+      positions[i] = cloud->points[i].position_in_table.cast<double>();
     open3d::geometry::KDTreeFlann tree;
     tree.SetMatrixData(Eigen::Map<const Eigen::MatrixXd>(positions.data()->data(), 3,
-                                                          static_cast<Eigen::Index>(positions.size())));
+                                                         static_cast<Eigen::Index>(positions.size())));
     line_spacing = LineSpacing(*cloud, tree, positions);
     double radius = options.normal_radius_mm;
     if (radius == 0) radius = options.normal_radius_lines * line_spacing;
@@ -380,7 +385,8 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       const float reference = ratios[at];
       for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
         const float s = Shading(normal_in_cam(obs[k]), lamp);
-        (*shadow)[k] = Luminance(obs[k].rgb) < shadow_ratio * reference * s || (map_shadows && obs[k].lamp_blocked);
+        (*shadow)[k] =
+            Luminance(obs[k].rgb) < shadow_ratio * reference * s || (map_shadows && obs[k].lamp_blocked);
       }
     }
     for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
@@ -568,8 +574,8 @@ std::string FormatColorSummary(const ColorSummary& s) {
     const double strength = s.lamp_in_cam.norm();
     const Eigen::Vector3d d =
         strength > 0 ? Eigen::Vector3d(s.lamp_in_cam / strength) : Eigen::Vector3d::Zero();
-    out << "lamp shading removed (" << s.lamp_source << " lamp: direction in the camera frame " << d.x() << " "
-        << d.y() << " " << d.z() << ", diffuse/ambient " << strength << "; shading normals "
+    out << "lamp shading removed (" << s.lamp_source << " lamp: direction in the camera frame " << d.x()
+        << " " << d.y() << " " << d.z() << ", diffuse/ambient " << strength << "; shading normals "
         << (s.normal_radius_mm > 0 ? "PCA over " + std::to_string(s.normal_radius_mm).substr(0, 4) + " mm"
                                    : std::string("the cloud's"))
         << ")\n";

@@ -80,14 +80,16 @@ Result<LampCalibration> CalibrateLamp(const std::filesystem::path& bundle_dir, c
   ROTOSCAN_ASSIGN_OR_RETURN(ProcessResult scan, ProcessBundle(bundle_dir, rig, process, progress));
   std::vector<Eigen::Vector3d> points;
   for (const cloud::CloudPoint& p : scan.cloud.points) {
-    if (p.position_in_table.z() >= options.min_height_mm) points.push_back(p.position_in_table.cast<double>());
+    if (p.position_in_table.z() >= options.min_height_mm)
+      points.push_back(p.position_in_table.cast<double>());
   }
   Sphere sphere;
   std::vector<Eigen::Vector3d> kept = points;
   for (int round = 0; round < 3; ++round) {
     if (!FitSphere(kept, &sphere)) break;
     std::vector<double> residual;
-    for (const Eigen::Vector3d& p : points) residual.push_back(std::abs((p - sphere.centre).norm() - sphere.radius));
+    for (const Eigen::Vector3d& p : points)
+      residual.push_back(std::abs((p - sphere.centre).norm() - sphere.radius));
     const double mad = Median(residual);
     kept.clear();
     for (size_t i = 0; i < points.size(); ++i) {
@@ -131,8 +133,10 @@ Result<LampCalibration> CalibrateLamp(const std::filesystem::path& bundle_dir, c
     if (centre.z() <= sphere.radius) continue;
     const Eigen::Vector2d c = camera.Project(centre);
     const double reach = 1.5 * camera.fx * sphere.radius / (centre.z() - sphere.radius) + 4;
-    const int x0 = std::max(0, static_cast<int>(c.x() - reach)), x1 = std::min(camera.width - 1, static_cast<int>(c.x() + reach));
-    const int y0 = std::max(0, static_cast<int>(c.y() - reach)), y1 = std::min(camera.height - 1, static_cast<int>(c.y() + reach));
+    const int x0 = std::max(0, static_cast<int>(c.x() - reach)),
+              x1 = std::min(camera.width - 1, static_cast<int>(c.x() + reach));
+    const int y0 = std::max(0, static_cast<int>(c.y() - reach)),
+              y1 = std::min(camera.height - 1, static_cast<int>(c.y() + reach));
     size_t found = 0;
     for (int y = y0; y <= y1; ++y) {
       const cv::Vec3b* row = image.ptr<cv::Vec3b>(y);
@@ -203,21 +207,25 @@ Result<LampCalibration> CalibrateLamp(const std::filesystem::path& bundle_dir, c
   out.lamp_in_cam = b / a;
   out.ambient_level = a;
   out.pixels = used;
-  out.relative_rms = used > 0 && mean > 0 ? std::sqrt(residual / static_cast<double>(used)) / (mean / static_cast<double>(used)) : 0;
+  out.relative_rms = used > 0 && mean > 0 ? std::sqrt(residual / static_cast<double>(used)) /
+                                                (mean / static_cast<double>(used))
+                                          : 0;
   return out;
 }
 
 std::string FormatLampCalibration(const LampCalibration& c) {
   char text[640];
   const double strength = c.lamp_in_cam.norm();
-  const Eigen::Vector3d d = strength > 0 ? Eigen::Vector3d(c.lamp_in_cam / strength) : Eigen::Vector3d::Zero();
-  std::snprintf(text, sizeof(text),
-                "lamp: direction in the camera frame %.4f %.4f %.4f, diffuse/ambient %.3f (lamp %.4f %.4f %.4f)\n"
-                "  from %zu pixels of %d natural frames, fit RMS %.2f %% of the mean level (ambient %.1f levels)\n"
-                "  sphere: radius %.3f mm at %.3f %.3f %.3f mm (table frame), %zu laser points, RMS %.4f mm\n",
-                d.x(), d.y(), d.z(), strength, c.lamp_in_cam.x(), c.lamp_in_cam.y(), c.lamp_in_cam.z(), c.pixels,
-                c.frames, 100 * c.relative_rms, c.ambient_level, c.sphere_radius_mm, c.sphere_centre_in_table.x(),
-                c.sphere_centre_in_table.y(), c.sphere_centre_in_table.z(), c.sphere_points, c.sphere_rms_mm);
+  const Eigen::Vector3d d =
+      strength > 0 ? Eigen::Vector3d(c.lamp_in_cam / strength) : Eigen::Vector3d::Zero();
+  std::snprintf(
+      text, sizeof(text),
+      "lamp: direction in the camera frame %.4f %.4f %.4f, diffuse/ambient %.3f (lamp %.4f %.4f %.4f)\n"
+      "  from %zu pixels of %d natural frames, fit RMS %.2f %% of the mean level (ambient %.1f levels)\n"
+      "  sphere: radius %.3f mm at %.3f %.3f %.3f mm (table frame), %zu laser points, RMS %.4f mm\n",
+      d.x(), d.y(), d.z(), strength, c.lamp_in_cam.x(), c.lamp_in_cam.y(), c.lamp_in_cam.z(), c.pixels,
+      c.frames, 100 * c.relative_rms, c.ambient_level, c.sphere_radius_mm, c.sphere_centre_in_table.x(),
+      c.sphere_centre_in_table.y(), c.sphere_centre_in_table.z(), c.sphere_points, c.sphere_rms_mm);
   return text;
 }
 
@@ -241,7 +249,8 @@ Status WriteLampIntoCalibration(const std::filesystem::path& path, const Eigen::
                 lamp_in_cam.x(), lamp_in_cam.y(), lamp_in_cam.z());
   kept += block;
   auto check = geometry::ParseRigYaml(kept, path.string());
-  if (!check.ok() || !check->lamp_in_cam || (*check->lamp_in_cam - lamp_in_cam).norm() > 1e-9 * (1 + lamp_in_cam.norm())) {
+  if (!check.ok() || !check->lamp_in_cam ||
+      (*check->lamp_in_cam - lamp_in_cam).norm() > 1e-9 * (1 + lamp_in_cam.norm())) {
     return InternalError("the lamp written into " + path.string() + " does not read back");
   }
   return WriteFileAtomically(path, kept);

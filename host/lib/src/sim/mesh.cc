@@ -466,15 +466,18 @@ void SmoothCornerNormals(Mesh* m, double crease_deg) {
   std::vector<int> welded(m->vertices.size());
   for (size_t i = 0; i < m->vertices.size(); ++i) {
     const Eigen::Vector3f& v = m->vertices[i];
-    welded[i] = weld.emplace(std::array<float, 3>{v.x(), v.y(), v.z()}, static_cast<int>(weld.size())).first->second;
+    welded[i] =
+        weld.emplace(std::array<float, 3>{v.x(), v.y(), v.z()}, static_cast<int>(weld.size())).first->second;
   }
   std::vector<Eigen::Vector3f> area_normal(nf);
   std::vector<std::vector<uint32_t>> around(weld.size());
   for (size_t f = 0; f < nf; ++f) {
     const Eigen::Vector3i& t = m->faces[f];
     const Eigen::Vector3f& a = m->vertices[static_cast<size_t>(t[0])];
-    area_normal[f] = (m->vertices[static_cast<size_t>(t[1])] - a).cross(m->vertices[static_cast<size_t>(t[2])] - a);
-    for (int k = 0; k < 3; ++k) around[static_cast<size_t>(welded[static_cast<size_t>(t[k])])].push_back(static_cast<uint32_t>(f));
+    area_normal[f] =
+        (m->vertices[static_cast<size_t>(t[1])] - a).cross(m->vertices[static_cast<size_t>(t[2])] - a);
+    for (int k = 0; k < 3; ++k)
+      around[static_cast<size_t>(welded[static_cast<size_t>(t[k])])].push_back(static_cast<uint32_t>(f));
   }
   const float min_cos = static_cast<float>(std::cos(crease_deg * kPi / 180.0));
   m->corner_normals.assign(3 * nf, Eigen::Vector3f::Zero());

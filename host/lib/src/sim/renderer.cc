@@ -549,7 +549,8 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
       if (!mesh.corner_normals.empty()) {
         // Smooth shading (Mesh::corner_normals), on the geometric normal's side.
         const Eigen::Vector3f* c = &mesh.corner_normals[3 * static_cast<size_t>(prim_id)];
-        const Eigen::Vector3f smooth = ((1.0f - hit_u - hit_v) * c[0] + hit_u * c[1] + hit_v * c[2]).normalized();
+        const Eigen::Vector3f smooth =
+            ((1.0f - hit_u - hit_v) * c[0] + hit_u * c[1] + hit_v * c[2]).normalized();
         if (smooth.allFinite()) n = smooth.dot(n) < 0 ? -smooth : smooth;
       }
       if (ng.dot(dir) > 0) n = -n;  // towards the camera

@@ -7,10 +7,11 @@
 //
 // Method: the bundle is processed (laser points only, no color) and a sphere is fitted to the points above
 // the table (algebraic least squares, |p|^2 = 2 c . p + r^2 - |c|^2, then points further than 3 MADs or
-// 0.3 mm from it dropped and the fit repeated; at least 80 % of the points must stay on it). In each of up to `max_frames` natural frames, every pixel
-// whose ray meets the sphere gives the sphere's normal there, n = (p - c) / r in the camera frame, and its
-// luminance. Pixels near the sphere's outline (the normal at less than `min_cos_view` to the ray: the
-// image blur mixes them with the background) and saturated pixels are left out. Then
+// 0.3 mm from it dropped and the fit repeated; at least 80 % of the points must stay on it). In each of up to
+// `max_frames` natural frames, every pixel whose ray meets the sphere gives the sphere's normal there, n = (p
+// - c) / r in the camera frame, and its luminance. Pixels near the sphere's outline (the normal at less than
+// `min_cos_view` to the ray: the image blur mixes them with the background) and saturated pixels are left
+// out. Then
 //   I = A + max(0, n . B)       (A = a, B = a L)
 // is linear in (A, B) once each pixel is known to be lit (n . B > 0) or not: starting from the fit over all
 // pixels, each pixel is classified by the current B, pixels within `terminator_band` of the terminator
@@ -42,14 +43,14 @@ struct LampCalibrationOptions {
 
 struct LampCalibration {
   Eigen::Vector3d lamp_in_cam = Eigen::Vector3d::Zero();  // L: direction (camera frame) x diffuse / ambient
-  double ambient_level = 0;        // A: the sphere's unlit level (8-bit), for the report
+  double ambient_level = 0;  // A: the sphere's unlit level (8-bit), for the report
   Eigen::Vector3d sphere_centre_in_table = Eigen::Vector3d::Zero();
   double sphere_radius_mm = 0;
-  double sphere_rms_mm = 0;        // the points' RMS distance from the fitted sphere
+  double sphere_rms_mm = 0;  // the points' RMS distance from the fitted sphere
   size_t sphere_points = 0;
-  int frames = 0;                  // natural frames used
-  size_t pixels = 0;               // pixels in the final fit
-  double relative_rms = 0;         // the fit's RMS residual / the mean level of its pixels
+  int frames = 0;           // natural frames used
+  size_t pixels = 0;        // pixels in the final fit
+  double relative_rms = 0;  // the fit's RMS residual / the mean level of its pixels
 };
 
 // kInvalidArgument for bad options; kNotFound / kCorruptData for an unreadable bundle;
