@@ -7,6 +7,7 @@
 #include <memory>
 #include <ostream>
 #include <string>
+#include <system_error>
 #include <vector>
 
 #include "command.h"
@@ -126,8 +127,20 @@ struct CalibrateLampOptions {
 int RunCalibrateLamp(const CalibrateLampOptions& options, const Context& context) {
   const std::string command = "calibrate lamp";
   const std::string out = options.out.empty() ? options.calib : options.out;
+  // The calibration written must not land in the sphere's bundle (it would replace one of its files).
+  std::error_code error;
+  const std::filesystem::path bundle_dir = std::filesystem::weakly_canonical(options.bundle, error);
+  const std::filesystem::path written_at = std::filesystem::weakly_canonical(out, error);
+  const std::string inside = bundle_dir.string() + "/";
+  if (!bundle_dir.empty() && written_at.string().compare(0, inside.size(), inside) == 0) {
+    return ReportStatus(context, command,
+                        InvalidArgumentError("the calibration (" + out +
+                                             ") must not be written inside the bundle " + options.bundle));
+  }
   if (!options.out.empty()) {
-    const Status paths = CheckOutputPaths({{options.out, "--out"}}, {std::filesystem::path(options.bundle)});
+    const Status paths =
+        CheckOutputPaths({{options.out, "--out"}},
+                         {std::filesystem::path(options.bundle), std::filesystem::path(options.calib)});
     if (!paths.ok()) return ReportStatus(context, command, paths);
   }
   Result<geometry::Rig> rig = geometry::ReadRigYaml(options.calib);

@@ -17,7 +17,7 @@ namespace rotoscan::pipeline {
 namespace {
 
 // data/scenes/lamp-sphere.json (a 20 mm white sphere under the default lamp: ambient 0.3, diffuse 1 from
-// (0.3, -1, -1) in the camera frame), 4 steps, with the true rig. Measured: direction 0.01° off,
+// (0.3, -1, -1) in the camera frame), 4 steps, with the true rig. Measured: direction 0.005° off,
 // diffuse/ambient 3.327 against 3.333 (the lamp.h fit over ~560,000 pixels).
 TEST(LampTest, CalibratedFromAWhiteSphereMatchesTheRenderersLamp) {
   testing::ScratchDir dir;
