@@ -1,18 +1,22 @@
-// rotoscan calibrate: camera intrinsics from checkerboard or ChArUco images (calibrate camera), or the whole
-// rig (camera, both laser planes, table axis) from calibration bundles (pipeline/calibrate.h). This file
+// rotoscan calibrate: camera intrinsics from checkerboard or ChArUco images (calibrate camera), the whole
+// rig (camera, both laser planes, table axis) from calibration bundles (pipeline/calibrate.h), or the lamp
+// of the natural frames from a scan of a white sphere (calibrate lamp, pipeline/lamp.h). This file
 // parses the options, calls the library and prints.
 #include <filesystem>
 #include <iomanip>
 #include <memory>
 #include <ostream>
 #include <string>
+#include <system_error>
 #include <vector>
 
 #include "command.h"
 #include "rotoscan/calib/camera_calibration.h"
 #include "rotoscan/calib/charuco.h"
 #include "rotoscan/core/file.h"
+#include "rotoscan/geometry/rig.h"
 #include "rotoscan/pipeline/calibrate.h"
+#include "rotoscan/pipeline/lamp.h"
 
 namespace rotoscan::cli {
 
@@ -120,6 +124,48 @@ int RunCalibrateCamera(const CalibrateCameraOptions& options, const Context& con
   return kExitOk;
 }
 
+struct CalibrateLampOptions {
+  std::string bundle;
+  std::string calib = "calib.yaml";
+  std::string out;  // empty: --calib itself
+};
+
+int RunCalibrateLamp(const CalibrateLampOptions& options, const Context& context) {
+  const std::string command = "calibrate lamp";
+  const std::string out = options.out.empty() ? options.calib : options.out;
+  // The calibration written must not land in the sphere's bundle (it would replace one of its files).
+  std::error_code error;
+  const std::filesystem::path bundle_dir = std::filesystem::weakly_canonical(options.bundle, error);
+  const std::filesystem::path written_at = std::filesystem::weakly_canonical(out, error);
+  const std::string inside = bundle_dir.string() + "/";
+  if (!bundle_dir.empty() && written_at.string().compare(0, inside.size(), inside) == 0) {
+    return ReportStatus(context, command,
+                        InvalidArgumentError("the calibration (" + out +
+                                             ") must not be written inside the bundle " + options.bundle));
+  }
+  if (!options.out.empty()) {
+    const Status paths =
+        CheckOutputPaths({{options.out, "--out"}},
+                         {std::filesystem::path(options.bundle), std::filesystem::path(options.calib)});
+    if (!paths.ok()) return ReportStatus(context, command, paths);
+  }
+  Result<geometry::Rig> rig = geometry::ReadRigYaml(options.calib);
+  if (!rig.ok()) return ReportStatus(context, command, rig.status());
+  Result<pipeline::LampCalibration> lamp =
+      pipeline::CalibrateLamp(options.bundle, *rig, {}, context.progress);
+  if (!lamp.ok()) return ReportStatus(context, command, lamp.status());
+  if (out != options.calib) {
+    Result<std::string> text = ReadFile(options.calib);
+    if (!text.ok()) return ReportStatus(context, command, text.status());
+    const Status copied = WriteFileAtomically(out, *text);
+    if (!copied.ok()) return ReportStatus(context, command, copied);
+  }
+  const Status written = pipeline::WriteLampIntoCalibration(out, lamp->lamp_in_cam);
+  if (!written.ok()) return ReportStatus(context, command, written);
+  *context.out << pipeline::FormatLampCalibration(*lamp) << "wrote the lamp into " << out << "\n";
+  return kExitOk;
+}
+
 void RegisterCalibrate(CLI::App& app, const Context& context, int* exit_code) {
   CLI::App* sub = app.add_subcommand(
       "calibrate", "Calibrate the rig from calibration bundles, or the camera alone (calibrate camera)");
@@ -133,7 +179,7 @@ void RegisterCalibrate(CLI::App& app, const Context& context, int* exit_code) {
       ->capture_default_str()
       ->check(CLI::IsMember({"independent", "cumulative"}));
   sub->callback([rig_options, &context, exit_code, sub] {
-    if (sub->got_subcommand("camera")) return;
+    if (sub->got_subcommand("camera") || sub->got_subcommand("lamp")) return;
     *exit_code = RunCalibrateRig(*rig_options, context);
   });
 
@@ -157,6 +203,19 @@ void RegisterCalibrate(CLI::App& app, const Context& context, int* exit_code) {
       ->check(CLI::Range(3, 10000));
   camera->callback(
       [camera_options, &context, exit_code] { *exit_code = RunCalibrateCamera(*camera_options, context); });
+
+  auto lamp_options = std::make_shared<CalibrateLampOptions>();
+  CLI::App* lamp = sub->add_subcommand(
+      "lamp",
+      "The natural frames' lamp (direction and diffuse/ambient, camera frame) from a scan of a matte white "
+      "sphere; written into the calibration, where process uses it");
+  lamp->add_option("bundle", lamp_options->bundle, "scan bundle of the sphere (data/scenes/lamp-sphere.json)")
+      ->required();
+  lamp->add_option("--calib", lamp_options->calib, "the rig's calibration (read, and updated unless --out)")
+      ->capture_default_str();
+  lamp->add_option("--out", lamp_options->out, "write the calibration with the lamp here instead");
+  lamp->callback(
+      [lamp_options, &context, exit_code] { *exit_code = RunCalibrateLamp(*lamp_options, context); });
 }
 
 }  // namespace rotoscan::cli

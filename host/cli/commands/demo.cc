@@ -2,6 +2,7 @@
 //   1. render calibration bundles (a checkerboard standing on the table in three placements, turned, lasers
 //      on and off),
 //   2. calibrate the rig from it (camera, both laser planes, table axis: three steps + joint refinement),
+//      and the lamp of the natural frames from a rendered white sphere (calibrate lamp),
 //   3. render a scan of the bundled Spot model (textured) with both lasers over a whole turn (--steps steps
 //      of 360 / steps degrees), upright (placement 0), and a
 //      second one with Spot nose down (placement 1 of data/scenes/spot.json, the best second pose of the
@@ -99,6 +100,7 @@ int RunDemo(const DemoOptions& options, const Context& context) {
   const std::string scene = (data / "scenes/spot.json").string();
   const int side_steps = options.side_steps > 0 ? options.side_steps : options.steps;
   const std::string calib = (out / "calib.yaml").string();
+  const std::string lamp_bundle = (out / "lamp-bundle").string();
   const std::string cloud = (out / "cloud.ply").string();
   const std::string mesh = (out / "mesh.ply").string();
   const std::string preview = (out / "preview.png").string();
@@ -126,6 +128,12 @@ int RunDemo(const DemoOptions& options, const Context& context) {
       {"3/7 calibrate camera, laser planes and table axis",
        {"calibrate", calib_bundle_a, calib_bundle_b, calib_bundle_c, "--out", calib, "--report",
         (out / "calib-report.json").string()}},
+      // The lamp, from a white sphere (4 steps, ~10 s): process then divides out a calibrated lamp.
+      {"3/7 render the lamp calibration bundle (a matte white sphere, 4 steps)",
+       {"simulate", (data / "scenes/lamp-sphere.json").string(), "--kind", "scan", "--steps", "4",
+        "--step-deg", "90", "--out", lamp_bundle, "--overwrite"}},
+      {"3/7 calibrate the lamp from the sphere (into calib.yaml)",
+       {"calibrate", "lamp", lamp_bundle, "--calib", calib}},
       {"4/7 render the scan of Spot upright (placement 0, " + std::to_string(options.steps) +
            " steps, both lasers)",
        {"simulate", scene, "--kind", "scan", "--steps", std::to_string(options.steps), "--step-deg",

@@ -22,6 +22,7 @@ struct ProcessCommandOptions {
   std::string dark_frame;
   std::string color = "views";
   std::vector<double> lamp;
+  bool estimate_lamp = false;
   cloud::FilterOptions filter;
   bool keep_outliers = false;
 };
@@ -56,6 +57,7 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
     if (o.lamp.size() != 3) return fail(InvalidArgumentError("--lamp takes 3 numbers: x,y,z"));
     options.color.lamp_in_cam = Eigen::Vector3d(o.lamp[0], o.lamp[1], o.lamp[2]);
   }
+  options.color.use_calibrated_lamp = !o.estimate_lamp;
   if (o.lasers == "left") {
     options.use_laser[1] = false;
   } else if (o.lasers == "right") {
@@ -141,11 +143,16 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
                   "divided out (pipeline/color.h); views-shaded: the same without dividing the shading; step: "
                   "the natural frame of the point's own step")
       ->capture_default_str();
-  sub->add_option("--lamp", o.lamp,
-                  "a calibrated lamp instead of the estimate: x,y,z in the camera frame, the direction to the lamp "
-                  "times its diffuse / ambient ratio (pipeline/color.h)")
-      ->delimiter(',')
-      ->expected(3);
+  CLI::Option* lamp =
+      sub->add_option(
+             "--lamp", o.lamp,
+             "a known lamp instead of the calibration's or the estimate: x,y,z in the camera frame, the "
+             "direction to the lamp times its diffuse / ambient ratio (pipeline/color.h)")
+          ->delimiter(',')
+          ->expected(3);
+  sub->add_flag("--estimate-lamp", o.estimate_lamp,
+                "estimate the lamp from the scan even when the calibration has one (calibrate lamp)")
+      ->excludes(lamp);
   sub->callback([&context, exit_code] { *exit_code = RunProcess(o, context); });
 }
 

@@ -532,6 +532,14 @@ TEST_F(HostileTest, MessagesSayWhatIsWrong) {
   ExpectRefused({"demo", "--data", rotoscan::testing::DataPath("").string(), "--out", P("demo-file")}, kExitFailure,
                 "demo-file");
   ExpectRefused({"bench", "foo"}, kExitUsage, "unknown benchmark 'foo'");
+  // calibrate lamp never writes the calibration into the sphere's bundle (it would replace one of its files).
+  fs::create_directories(dir_ / "sphere");
+  WriteText(dir_ / "sphere" / "bundle.json", "{}");
+  ExpectRefused(
+      {"calibrate", "lamp", P("sphere"), "--calib", P("calib.yaml"), "--out", P("sphere/bundle.json")},
+      kExitFailure, "inside the bundle");
+  ExpectRefused({"calibrate", "lamp", P("sphere"), "--calib", P("calib.yaml")}, kExitFailure,
+                "not a regular file");
   // A PLY comment containing "end_header" does not end the header.
   cloud::PointCloud few = Sphere(10);
   std::string bytes = cloud::EncodePly(few);

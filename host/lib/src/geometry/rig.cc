@@ -87,6 +87,9 @@ Status Rig::Validate() const {
   if (!std::isfinite(step_angle_rad) || std::abs(step_angle_rad) > DegToRad(360.0)) {
     return InvalidArgumentError("step_angle_deg must be finite and within one turn");
   }
+  if (lamp_in_cam && (!IsFinite(*lamp_in_cam) || lamp_in_cam->norm() > 1e3)) {
+    return InvalidArgumentError("lamp must be finite and below 1000 (direction times diffuse / ambient)");
+  }
   return Status::Ok();
 }
 
@@ -120,6 +123,7 @@ void WriteRigNodes(cv::FileStorage& storage, const Rig& rig) {
   storage << "axis_point" << ToMat(rig.axis_point_in_cam);
   storage << "axis_direction" << ToMat(rig.axis_direction_in_cam);
   storage << "step_angle_deg" << RadToDeg(rig.step_angle_rad);
+  if (rig.lamp_in_cam) storage << "lamp" << ToMat(*rig.lamp_in_cam);
 }
 
 Result<CameraModel> ReadCameraNodes(const cv::FileNode& root) {
@@ -156,6 +160,10 @@ Result<Rig> ReadRigNodes(const cv::FileNode& root) {
       Eigen::Vector3d(direction.at<double>(0), direction.at<double>(1), direction.at<double>(2));
   if (root["step_angle_deg"].empty()) return InvalidArgumentError("missing key 'step_angle_deg'");
   rig.step_angle_rad = DegToRad(static_cast<double>(root["step_angle_deg"]));
+  if (!root["lamp"].empty()) {
+    ROTOSCAN_ASSIGN_OR_RETURN(cv::Mat lamp, ReadVector(root, "lamp", 3));
+    rig.lamp_in_cam = Eigen::Vector3d(lamp.at<double>(0), lamp.at<double>(1), lamp.at<double>(2));
+  }
   ROTOSCAN_RETURN_IF_ERROR(rig.Validate());
   return rig;
 }

@@ -8,10 +8,13 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <thread>
 
+#include <open3d/geometry/KDTreeFlann.h>
+#include <Eigen/Eigenvalues>
 #include <opencv2/imgproc.hpp>
 
 #include "rotoscan/core/check.h"
@@ -21,13 +24,12 @@
 namespace rotoscan::pipeline {
 namespace {
 
-constexpr double kShadowRatio = 0.6;  // darker than this x the model: a cast shadow in that view
-
 struct Observation {
   uint32_t point = 0;
   uint16_t view = 0;
   std::array<uint8_t, 3> rgb{};
   float cos_camera = 0;
+  bool lamp_blocked = false;  // in the cloud's cast shadow (the shadow map, or truth_visibility's answer)
 };
 
 struct View {
@@ -43,9 +45,14 @@ float Shading(const Eigen::Vector3f& normal_in_cam, const Eigen::Vector3f& lamp)
   return 1.0f + std::max(0.0f, normal_in_cam.dot(lamp));
 }
 
-// One view: every point's observation there (facing, inside, unoccluded, unsaturated).
-void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv::Mat& natural, double angle,
-             uint16_t view, const ColorOptions& options, std::vector<Observation>* out) {
+// One view: every point's observation there (facing, inside, unoccluded, unsaturated); with a known lamp
+// (`lamp_in_cam` not null), each flagged when the cloud casts a shadow on it (a shadow map: the cloud seen
+// from the far lamp, an orthographic view along its direction in cells of `shadow_cell_mm`, keeping the
+// depth nearest the lamp; shadowed when something lies more than shadow_margin_mm nearer the lamp).
+void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud,
+             const std::vector<Eigen::Vector3f>& normals, const cv::Mat& natural, double angle, uint16_t view,
+             const ColorOptions& options, const Eigen::Vector3f* lamp_in_cam, double shadow_cell_mm,
+             std::vector<Observation>* out) {
   const geometry::CameraModel& camera = rig.camera;
   const Eigen::Isometry3d cam_from_table = rig.WorldFromCamAtAngle(angle).inverse();
   const Eigen::Matrix3f r = cam_from_table.linear().cast<float>();
@@ -79,22 +86,140 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud, const cv:
   }
   const Eigen::Vector3f camera_in_table = -(r.transpose() * t);
   const float occlusion = static_cast<float>(options.occlusion_mm);
+  // The shadow map (function comment).
+  std::vector<float> lamp_depth;
+  Eigen::Vector3f toward_lamp = Eigen::Vector3f::Zero(), su = Eigen::Vector3f::Zero(),
+                  sv = Eigen::Vector3f::Zero();
+  float u0 = 0, v0 = 0;
+  int sw = 0, sh = 0;
+  const float scell = static_cast<float>(shadow_cell_mm);
+  const bool use_map = lamp_in_cam != nullptr && lamp_in_cam->norm() > 0 && options.shadow_map &&
+                       !options.truth_visibility && cloud.size() > 0;
+  if (use_map) {
+    toward_lamp = (r.transpose() * *lamp_in_cam).normalized();  // table frame
+    su = toward_lamp.unitOrthogonal();
+    sv = toward_lamp.cross(su);
+    float u1 = -std::numeric_limits<float>::infinity(), v1 = u1;
+    u0 = v0 = std::numeric_limits<float>::infinity();
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const float u = su.dot(p.position_in_table), v = sv.dot(p.position_in_table);
+      u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+    }
+    sw = std::min(8192, static_cast<int>((u1 - u0) / scell) + 1);
+    sh = std::min(8192, static_cast<int>((v1 - v0) / scell) + 1);
+    lamp_depth.assign(static_cast<size_t>(sw) * static_cast<size_t>(sh),
+                      -std::numeric_limits<float>::infinity());
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const int cx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
+      const int cy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
+      const float d = toward_lamp.dot(p.position_in_table);
+      for (int y = std::max(0, cy - 1); y <= std::min(sh - 1, cy + 1); ++y) {
+        for (int x = std::max(0, cx - 1); x <= std::min(sw - 1, cx + 1); ++x) {
+          float& m = lamp_depth[static_cast<size_t>(y) * static_cast<size_t>(sw) + static_cast<size_t>(x)];
+          m = std::max(m, d);
+        }
+      }
+    }
+  }
+  const float shadow_margin = static_cast<float>(options.shadow_margin_mm);
   for (size_t i = 0; i < cloud.size(); ++i) {
     if (z[i] < 0) continue;
     const cloud::CloudPoint& p = cloud.points[i];
-    if (p.normal.squaredNorm() < 0.5f) continue;
+    if (normals[i].squaredNorm() < 0.5f) continue;
     const Eigen::Vector3f to_camera = (camera_in_table - p.position_in_table).normalized();
-    const float cos_camera = p.normal.normalized().dot(to_camera);
+    const float cos_camera = normals[i].dot(to_camera);
     if (cos_camera < options.min_cos_camera) continue;
-    const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
-    if (z[i] >
-        depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
-      continue;  // hidden by a nearer surface
+    bool lamp_blocked = false;
+    if (options.truth_visibility) {
+      const int truth = options.truth_visibility(i, angle);
+      if ((truth & kHidden) != 0) continue;
+      lamp_blocked = (truth & kLampBlocked) != 0;
+    } else {
+      const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
+      if (z[i] >
+          depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
+        continue;  // hidden by a nearer surface
+      }
+      if (use_map) {
+        const int sx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
+        const int sy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
+        lamp_blocked =
+            lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
+            toward_lamp.dot(p.position_in_table) + shadow_margin;
+      }
     }
     const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
     if (*std::max_element(rgb.begin(), rgb.end()) >= options.saturation) continue;
-    out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera});
+    out->push_back({static_cast<uint32_t>(i), view, rgb, cos_camera, lamp_blocked});
   }
+}
+
+// The scan's spacing between laser lines: the median, over a sample of points, of the distance to the
+// nearest point of another line (another step or laser). 0 when no point has one among its 48 nearest.
+double LineSpacing(const cloud::PointCloud& cloud, const open3d::geometry::KDTreeFlann& tree,
+                   const std::vector<Eigen::Vector3d>& positions) {
+  std::vector<double> spacing;
+  std::vector<int> found;
+  std::vector<double> d2;
+  const size_t stride = std::max<size_t>(1, cloud.size() / 2000);
+  for (size_t i = 0; i < cloud.size(); i += stride) {
+    tree.SearchKNN(positions[i], 48, found, d2);
+    const cloud::CloudPoint& p = cloud.points[i];
+    for (size_t k = 0; k < found.size(); ++k) {
+      const cloud::CloudPoint& q = cloud.points[static_cast<size_t>(found[k])];
+      if (q.step != p.step || q.laser != p.laser) {
+        spacing.push_back(std::sqrt(d2[k]));
+        break;
+      }
+    }
+  }
+  if (spacing.empty()) return 0;
+  std::nth_element(spacing.begin(), spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2),
+                   spacing.end());
+  return spacing[spacing.size() / 2];
+}
+
+// Shading normals by PCA over `radius` (file comment in color.h), on the side of each point's own normal;
+// a point with fewer than 6 neighbours, or without a normal, keeps its own (zero: no normal).
+std::vector<Eigen::Vector3f> PcaNormals(const cloud::PointCloud& cloud, double radius, int threads,
+                                        const open3d::geometry::KDTreeFlann& tree,
+                                        const std::vector<Eigen::Vector3d>& positions) {
+  std::vector<Eigen::Vector3f> normals(cloud.size());
+  std::atomic<size_t> next{0};
+  constexpr size_t kChunk = 1024;
+  auto worker = [&] {
+    std::vector<int> found;
+    std::vector<double> d2;
+    for (;;) {
+      const size_t first = next.fetch_add(kChunk);
+      if (first >= cloud.size()) return;
+      for (size_t i = first; i < std::min(cloud.size(), first + kChunk); ++i) {
+        const Eigen::Vector3f own = cloud.points[i].normal;
+        normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
+        if (normals[i].squaredNorm() == 0) continue;
+        tree.SearchRadius(positions[i], radius, found, d2);
+        if (found.size() < 6) continue;
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (const int k : found) mean += positions[static_cast<size_t>(k)];
+        mean /= static_cast<double>(found.size());
+        Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+        for (const int k : found) {
+          const Eigen::Vector3d d = positions[static_cast<size_t>(k)] - mean;
+          covariance += d * d.transpose();
+        }
+        const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+        Eigen::Vector3f n = solver.eigenvectors().col(0).cast<float>();  // the smallest eigenvalue's
+        if (!n.allFinite() || n.squaredNorm() < 0.5f) continue;
+        n.normalize();
+        normals[i] = n.dot(normals[i]) < 0 ? Eigen::Vector3f(-n) : n;
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (std::thread& t : pool) t.join();
+  return normals;
 }
 
 }  // namespace
@@ -110,11 +235,18 @@ Status ColorOptions::Check() const {
   if (zbuffer_splat_cells < 0 || zbuffer_splat_cells > 8) {
     return InvalidArgumentError("color: zbuffer_splat_cells in [0, 8]");
   }
+  if (!(shadow_ratio >= 0 && shadow_ratio < 1)) return InvalidArgumentError("color: shadow_ratio in [0, 1)");
+  if (!(shadow_margin_mm > 0 && shadow_margin_mm < 100))
+    return InvalidArgumentError("color: shadow_margin_mm in (0, 100)");
   if (saturation < 1 || saturation > 256) return InvalidArgumentError("color: saturation in [1, 256]");
   if (lamp_in_cam && (!lamp_in_cam->allFinite() || lamp_in_cam->norm() > 1e3)) {
     return InvalidArgumentError("color: the lamp vector must be finite (and below 1e3)");
   }
   if (threads < 0 || threads > 256) return InvalidArgumentError("color: threads in [0, 256]");
+  if (!std::isfinite(normal_radius_mm) || normal_radius_mm > 100)
+    return InvalidArgumentError("color: normal_radius_mm must be finite and at most 100");
+  if (!(normal_radius_lines > 0 && normal_radius_lines <= 50))
+    return InvalidArgumentError("color: normal_radius_lines in (0, 50]");
   return Status::Ok();
 }
 
@@ -132,6 +264,45 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     const int index = static_cast<int>(static_cast<int64_t>(v) * steps / wanted);
     if (indices.empty() || indices.back() != index) indices.push_back(index);
   }
+
+  const int threads = options.threads > 0
+                          ? options.threads
+                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  // Shading normals (color.h).
+  std::vector<Eigen::Vector3f> normals;
+  double line_spacing = 0;
+  if (options.normal_radius_mm >= 0) {
+    std::vector<Eigen::Vector3d> positions(cloud->size());
+    for (size_t i = 0; i < cloud->size(); ++i)
+      positions[i] = cloud->points[i].position_in_table.cast<double>();
+    open3d::geometry::KDTreeFlann tree;
+    tree.SetMatrixData(Eigen::Map<const Eigen::MatrixXd>(positions.data()->data(), 3,
+                                                         static_cast<Eigen::Index>(positions.size())));
+    line_spacing = LineSpacing(*cloud, tree, positions);
+    double radius = options.normal_radius_mm;
+    if (radius == 0) radius = options.normal_radius_lines * line_spacing;
+    if (radius > 0) {
+      normals = PcaNormals(*cloud, radius, threads, tree, positions);
+      summary->normal_radius_mm = radius;
+    }
+  }
+  if (normals.empty()) {
+    normals.resize(cloud->size());
+    for (size_t i = 0; i < cloud->size(); ++i) {
+      const Eigen::Vector3f& own = cloud->points[i].normal;
+      normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
+    }
+  }
+
+  // A lamp known before the views are read (given or calibrated) gives each view a shadow map.
+  std::optional<Eigen::Vector3f> known_lamp;
+  if (options.lamp_in_cam) {
+    known_lamp = options.lamp_in_cam->cast<float>();
+  } else if (options.use_calibrated_lamp && rig.lamp_in_cam) {
+    known_lamp = rig.lamp_in_cam->cast<float>();
+  }
+  const Eigen::Vector3f* map_lamp = known_lamp && options.remove_shading ? &*known_lamp : nullptr;
+  const double shadow_cell = line_spacing > 0 ? line_spacing : 0.5;
 
   // Observations, view by view (each thread its own natural frame and depth buffer).
   std::vector<std::vector<Observation>> per_view(indices.size());
@@ -158,12 +329,10 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       views[v].angle = angle;
       views[v].cam_from_table_rotation = rig.WorldFromCamAtAngle(angle).linear().transpose().cast<float>();
       have_view[v] = 1;
-      Observe(rig, *cloud, image, angle, static_cast<uint16_t>(v), options, &per_view[v]);
+      Observe(rig, *cloud, normals, image, angle, static_cast<uint16_t>(v), options, map_lamp, shadow_cell,
+              &per_view[v]);
     }
   };
-  const int threads = options.threads > 0
-                          ? options.threads
-                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   std::vector<std::thread> pool;
   for (int i = 1; i < std::min<int>(threads, static_cast<int>(indices.size())); ++i)
     pool.emplace_back(worker);
@@ -192,16 +361,21 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     }
   }
   auto normal_in_cam = [&](const Observation& o) -> Eigen::Vector3f {
-    return views[o.view].cam_from_table_rotation * cloud->points[o.point].normal.normalized();
+    return views[o.view].cam_from_table_rotation * normals[o.point];
   };
-  // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than kShadowRatio x
+  const float shadow_ratio = static_cast<float>(options.shadow_ratio);
+  const bool truth_shadows = static_cast<bool>(options.truth_visibility);
+  const bool map_shadows = map_lamp != nullptr && options.shadow_map && !truth_shadows;
+  // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than shadow_ratio x
   // the model against a reference taken high in the views' range (the 75th percentile of I / shading: cast
   // shadows only darken, so the bright views are the lit truth even when most views are shadowed) are
   // flagged and left out.
   std::vector<float> ratios;
   auto albedo = [&](size_t i, const Eigen::Vector3f& lamp, std::vector<char>* shadow) {
     double num = 0, den = 0;
-    if (shadow != nullptr) {
+    if (shadow != nullptr && truth_shadows) {
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) (*shadow)[k] = obs[k].lamp_blocked;
+    } else if (shadow != nullptr) {
       ratios.clear();
       for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
         ratios.push_back(Luminance(obs[k].rgb) / Shading(normal_in_cam(obs[k]), lamp));
@@ -211,7 +385,8 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       const float reference = ratios[at];
       for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
         const float s = Shading(normal_in_cam(obs[k]), lamp);
-        (*shadow)[k] = Luminance(obs[k].rgb) < kShadowRatio * reference * s;
+        (*shadow)[k] =
+            Luminance(obs[k].rgb) < shadow_ratio * reference * s || (map_shadows && obs[k].lamp_blocked);
       }
     }
     for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
@@ -231,7 +406,13 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   if (options.lamp_in_cam) {
     lamp = options.lamp_in_cam->cast<float>();
     summary->shading_removed = options.remove_shading;
+    summary->lamp_source = "given";
+  } else if (options.use_calibrated_lamp && rig.lamp_in_cam) {
+    lamp = rig.lamp_in_cam->cast<float>();
+    summary->shading_removed = options.remove_shading;
+    summary->lamp_source = "calibrated";
   } else if (options.remove_shading) {
+    summary->lamp_source = "estimated";
     std::vector<size_t> sample;
     for (size_t i = 0; i < n; ++i) {
       if (offset[i + 1] - offset[i] >= 6) sample.push_back(i);
@@ -265,7 +446,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
           }
           const size_t at = (ratio.size() * 3) / 4;
           std::nth_element(ratio.begin(), ratio.begin() + static_cast<std::ptrdiff_t>(at), ratio.end());
-          const float floor = kShadowRatio * ratio[at];
+          const float floor = shadow_ratio * ratio[at];
           double num = 0, den = 0;
           for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
             if (ys[k] < floor * shading[k]) continue;
@@ -363,7 +544,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     if (color[i].x() >= 0) continue;
     const cloud::CloudPoint& p = cloud->points[i];
     const Eigen::Matrix3f r = rig.WorldFromCamAtAngle(rate * p.step).linear().transpose().cast<float>();
-    const float s = p.normal.squaredNorm() > 0.5f ? Shading(r * p.normal.normalized(), lamp) : 1.0f;
+    const float s = normals[i].squaredNorm() > 0.5f ? Shading(r * normals[i], lamp) : 1.0f;
     color[i] = Eigen::Vector3f(p.color[0], p.color[1], p.color[2]) / s;
   }
   // One fixed factor, the same for every scan under the same lamp and exposure (so that placements merge
@@ -393,8 +574,11 @@ std::string FormatColorSummary(const ColorSummary& s) {
     const double strength = s.lamp_in_cam.norm();
     const Eigen::Vector3d d =
         strength > 0 ? Eigen::Vector3d(s.lamp_in_cam / strength) : Eigen::Vector3d::Zero();
-    out << "lamp shading removed (lamp direction in the camera frame " << d.x() << " " << d.y() << " "
-        << d.z() << ", diffuse/ambient " << strength << ")\n";
+    out << "lamp shading removed (" << s.lamp_source << " lamp: direction in the camera frame " << d.x()
+        << " " << d.y() << " " << d.z() << ", diffuse/ambient " << strength << "; shading normals "
+        << (s.normal_radius_mm > 0 ? "PCA over " + std::to_string(s.normal_radius_mm).substr(0, 4) + " mm"
+                                   : std::string("the cloud's"))
+        << ")\n";
   } else {
     out << "shading kept" << (s.note.empty() ? std::string() : " (" + s.note + ")") << "\n";
   }

@@ -1,8 +1,10 @@
 #include "mesh.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -10,6 +12,7 @@
 
 #include "rotoscan/bundle/truth.h"
 #include "rotoscan/calib/charuco.h"
+#include "rotoscan/core/check.h"
 #include "rotoscan/core/file.h"
 #include "rotoscan/geometry/image_file.h"
 #include "rotoscan/geometry/rigid.h"
@@ -449,7 +452,45 @@ Result<Mesh> MakeObject(const ObjectSpec& spec, const Scene& scene) {
   m.table_from_object = pose;
   m.object_from_table = pose.inverse();
   for (Eigen::Vector3f& v : m.vertices) v = (pose * v.cast<double>()).cast<float>();
+  // A mesh file stands for a smooth object (Spot's 1.5 mm facets are the file's sampling, not the object's
+  // shape): shaded with interpolated normals, as a real surface would be lit.
+  if (spec.type == ObjectType::kMesh) SmoothCornerNormals(&m, 60.0);
   return m;
+}
+
+void SmoothCornerNormals(Mesh* m, double crease_deg) {
+  ROTOSCAN_CHECK(m != nullptr);
+  const size_t nf = m->faces.size();
+  // Vertices at the same position (texture seams) welded into one.
+  std::map<std::array<float, 3>, int> weld;
+  std::vector<int> welded(m->vertices.size());
+  for (size_t i = 0; i < m->vertices.size(); ++i) {
+    const Eigen::Vector3f& v = m->vertices[i];
+    welded[i] =
+        weld.emplace(std::array<float, 3>{v.x(), v.y(), v.z()}, static_cast<int>(weld.size())).first->second;
+  }
+  std::vector<Eigen::Vector3f> area_normal(nf);
+  std::vector<std::vector<uint32_t>> around(weld.size());
+  for (size_t f = 0; f < nf; ++f) {
+    const Eigen::Vector3i& t = m->faces[f];
+    const Eigen::Vector3f& a = m->vertices[static_cast<size_t>(t[0])];
+    area_normal[f] =
+        (m->vertices[static_cast<size_t>(t[1])] - a).cross(m->vertices[static_cast<size_t>(t[2])] - a);
+    for (int k = 0; k < 3; ++k)
+      around[static_cast<size_t>(welded[static_cast<size_t>(t[k])])].push_back(static_cast<uint32_t>(f));
+  }
+  const float min_cos = static_cast<float>(std::cos(crease_deg * kPi / 180.0));
+  m->corner_normals.assign(3 * nf, Eigen::Vector3f::Zero());
+  for (size_t f = 0; f < nf; ++f) {
+    const Eigen::Vector3f own = area_normal[f].normalized();
+    for (int k = 0; k < 3; ++k) {
+      Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+      for (const uint32_t g : around[static_cast<size_t>(welded[static_cast<size_t>(m->faces[f][k])])]) {
+        if (area_normal[g].normalized().dot(own) >= min_cos) sum += area_normal[g];
+      }
+      m->corner_normals[3 * f + static_cast<size_t>(k)] = sum.squaredNorm() > 0 ? sum.normalized() : own;
+    }
+  }
 }
 
 }  // namespace rotoscan::sim::internal

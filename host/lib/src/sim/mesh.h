@@ -20,6 +20,9 @@ struct Mesh {
   std::vector<Eigen::Vector3i> faces;
   std::vector<Eigen::Vector3f> colors;      // per-vertex albedo RGB 0..1 (optional)
   std::vector<Eigen::Vector2f> uv;          // 3 per face (optional, with texture)
+  // 3 per face (table frame, unit, on the side of the face's own normal): the shading normal is their
+  // barycentric blend (smooth shading of a mesh that stands for a smooth surface); empty: flat facets.
+  std::vector<Eigen::Vector3f> corner_normals;
   cv::Mat texture;                          // CV_32FC3, BGR albedo 0..1
   Eigen::Vector3f color{0.8f, 0.8f, 0.8f};  // uniform albedo RGB
   Pattern pattern = Pattern::kNone;
@@ -51,6 +54,11 @@ struct Mesh {
     return pattern == Pattern::kNone && (texture.empty() || uv.empty()) && colors.empty() && checker_mm <= 0.0;
   }
 };
+
+// Fills m->corner_normals: at each corner of a face, the area-weighted mean of the normals of the faces
+// around that vertex (vertices at the same position count as one) within `crease_deg` of the face's
+// own, so that sharper edges stay sharp.
+void SmoothCornerNormals(Mesh* m, double crease_deg);
 
 // The table top: a disk of `radius` at z = 0 of the table frame, dark diffuse.
 Mesh MakeTableTop(double radius_mm, const Eigen::Vector3d& albedo);

@@ -546,7 +546,14 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
                      bool lamp_blocked) {
       const Mesh& mesh = impl_->meshes[geom_id];
       Eigen::Vector3f n = ng.normalized();
-      if (n.dot(dir) > 0) n = -n;  // towards the camera
+      if (!mesh.corner_normals.empty()) {
+        // Smooth shading (Mesh::corner_normals), on the geometric normal's side.
+        const Eigen::Vector3f* c = &mesh.corner_normals[3 * static_cast<size_t>(prim_id)];
+        const Eigen::Vector3f smooth =
+            ((1.0f - hit_u - hit_v) * c[0] + hit_u * c[1] + hit_v * c[2]).normalized();
+        if (smooth.allFinite()) n = smooth.dot(n) < 0 ? -smooth : smooth;
+      }
+      if (ng.dot(dir) > 0) n = -n;  // towards the camera
       // The hit point (double: the laser's Gaussian is evaluated at 0.01 mm scales 300 mm away), when used.
       Eigen::Vector3d p = Eigen::Vector3d::Zero();
       if (uniform[geom_id] == 0 || want_laser[0] || want_laser[1]) {

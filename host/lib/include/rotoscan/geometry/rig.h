@@ -9,6 +9,7 @@
 #pragma once
 
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include <Eigen/Core>
@@ -30,6 +31,9 @@ struct Rig {
   Eigen::Vector3d axis_point_in_cam{0, 0, 0};       // the table top's centre (a point on the axis), mm
   Eigen::Vector3d axis_direction_in_cam{0, -1, 0};  // unit, pointing up out of the table
   double step_angle_rad = 0.0;                      // table rotation per step, radians (0: unknown)
+  // The lamp of the natural frames, when calibrated (pipeline/lamp.h): a far Lambertian lamp fixed to the
+  // camera, as the direction towards it (camera frame) times its diffuse / ambient ratio (pipeline/color.h).
+  std::optional<Eigen::Vector3d> lamp_in_cam;
 
   const Plane& laser(LaserId id) const { return laser_plane[static_cast<int>(id)]; }
   Plane& laser(LaserId id) { return laser_plane[static_cast<int>(id)]; }
@@ -49,7 +53,8 @@ struct Rig {
 // calib.yaml: OpenCV FileStorage YAML (readable by any OpenCV user). Keys: image_width, image_height, K
 // (3x3), distortion (5x1: k1 k2 p1 p2 k3), laser_left_plane / laser_right_plane (4x1: nx ny nz d, camera
 // frame), axis_point (3x1, camera frame, mm), axis_direction (3x1), step_angle_deg, and the DLT matrix P
-// (3x4, paper eq. 3: K [I|0] since the camera frame is the reference). Readers ignore unknown keys, so the
+// (3x4, paper eq. 3: K [I|0] since the camera frame is the reference), and, only when calibrated, lamp (3x1:
+// Rig::lamp_in_cam; files without it read as before). Readers ignore unknown keys, so the
 // calibration adds its report (WriteRigNodes into its own FileStorage, then its own keys).
 Status WriteRigYaml(const std::filesystem::path& path, const Rig& rig);  // atomic
 Result<Rig> ReadRigYaml(const std::filesystem::path& path);

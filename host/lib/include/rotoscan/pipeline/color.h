@@ -24,7 +24,14 @@
 // and 3 strengths, then refined by a pattern search. When that is not well posed (too few points with
 // several views, or a lamp explaining less than 10 % of what a constant shading leaves), L = 0: the colors
 // are then the views' average, still the same whatever step or laser found the point. A calibrated lamp
-// (ColorOptions::lamp_in_cam, `process --lamp`) skips the estimate.
+// (the rig's, from `rotoscan calibrate lamp`, pipeline/lamp.h) or a given one (ColorOptions::lamp_in_cam,
+// `process --lamp`) skips the estimate.
+//
+// Normals: the scan grid's normals (cloud.h) come from a point's neighbours on its own and the next laser
+// lines; their noise flattens the shading they should explain. The shading uses normals refit by PCA over
+// every cloud point within a radius that follows the scan's spacing between laser lines (the smallest
+// eigenvector of the neighbourhood's covariance, turned to the side of the point's own normal, which
+// faces its camera); the cloud's own normals are left as they were.
 //
 // Each point's color is then the least-squares albedo over its views, weighted by how squarely it faces
 // the camera, with its cast-shadow views dropped, times one fixed factor, 1 + |L|: the brightness the
@@ -32,6 +39,8 @@
 // scans of several placements under the same lamp and exposure get the same colors (pipeline/placements.h).
 #pragma once
 
+#include <cstddef>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -55,10 +64,24 @@ struct ColorOptions {
   int zbuffer_splat_cells = 1;                 // each point covers (2k + 1)^2 cells
   int saturation = 250;                        // 8-bit level at which a channel counts as saturated
   bool remove_shading = true;                  // estimate L and divide the shading out
-  std::optional<Eigen::Vector3d> lamp_in_cam;  // a calibrated L (see the file comment); skips the estimate
+  // Shading normals (the file comment): PCA over the cloud's points within this radius (mm) of each point;
+  // 0: normal_radius_lines x the scan's own spacing between laser lines; < 0: the cloud's own normals.
+  double normal_radius_mm = 0;
+  double normal_radius_lines = 4.0;
+  std::optional<Eigen::Vector3d> lamp_in_cam;  // a given L (see the file comment); skips the estimate
+  bool use_calibrated_lamp = true;             // the rig's calibrated lamp (Rig::lamp_in_cam) when it has one
+  double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no such test)
+  bool shadow_map = true;     // with a known lamp, also the cloud's own cast shadows (a shadow map per view)
+  double shadow_margin_mm = 4.0;  // shadowed when the cloud lies this much nearer the lamp at the same place
+  // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
+  // called from several threads for every candidate observation (point index, the view's table angle)
+  // and returns a TruthVisibility; it replaces the depth-buffer occlusion test and the cast-shadow test.
+  std::function<int(size_t point, double table_angle_rad)> truth_visibility;
   int threads = 0;                             // 0: all cores
   Status Check() const;
 };
+
+enum TruthVisibility : int { kVisibleLit = 0, kHidden = 1, kLampBlocked = 2 };
 
 struct ColorSummary {
   bool done = false;
@@ -66,7 +89,9 @@ struct ColorSummary {
   size_t points_colored = 0;  // points with at least one view (others keep their color)
   double mean_views_per_point = 0;
   bool shading_removed = false;
+  double normal_radius_mm = 0;  // the PCA radius of the shading normals (0: the cloud's own normals)
   Eigen::Vector3d lamp_in_cam = Eigen::Vector3d::Zero();  // L (direction times diffuse / ambient)
+  std::string lamp_source;  // "given", "calibrated" (the rig's) or "estimated" (from the scan)
   double shadow_fraction = 0;                             // observations dropped as cast shadows
   std::string note;                                       // why the shading was not removed, when it was not
 };
