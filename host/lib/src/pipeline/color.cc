@@ -15,7 +15,6 @@
 
 #include <open3d/geometry/KDTreeFlann.h>
 #include <Eigen/Eigenvalues>
-#include <opencv2/imgproc.hpp>
 
 #include "rotoscan/core/check.h"
 #include "rotoscan/core/logging.h"
@@ -321,12 +320,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       auto natural = source.LoadNatural(indices[v], &angle);
       scope.Advance();
       if (!natural.ok() || natural->empty()) continue;
-      cv::Mat image = To8Bit(*natural, source.bit_depth());
-      if (source.bayer() && image.channels() == 1) {
-        cv::Mat bgr;
-        cv::cvtColor(image, bgr, cv::COLOR_BayerBG2BGR);
-        image = bgr;
-      }
+      const cv::Mat image = NaturalImageOf(source, *natural);
       if (image.cols != rig.camera.width || image.rows != rig.camera.height) continue;
       views[v].angle = angle;
       views[v].cam_from_table_rotation = rig.WorldFromCamAtAngle(angle).linear().transpose().cast<float>();

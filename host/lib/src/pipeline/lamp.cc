@@ -8,7 +8,6 @@
 #include <vector>
 
 #include <Eigen/Cholesky>
-#include <opencv2/imgproc.hpp>
 
 #include "rotoscan/bundle/bundle.h"
 #include "rotoscan/core/file.h"
@@ -122,12 +121,7 @@ Result<LampCalibration> CalibrateLamp(const std::filesystem::path& bundle_dir, c
     double angle = 0;
     auto natural = source.LoadNatural(index, &angle);
     if (!natural.ok() || natural->empty()) continue;
-    cv::Mat image = To8Bit(*natural, source.bit_depth());
-    if (source.bayer() && image.channels() == 1) {
-      cv::Mat bgr;
-      cv::cvtColor(image, bgr, cv::COLOR_BayerBG2BGR);
-      image = bgr;
-    }
+    const cv::Mat image = NaturalImageOf(source, *natural);
     if (image.cols != camera.width || image.rows != camera.height || image.channels() != 3) continue;
     const Eigen::Vector3d centre = rig.WorldFromCamAtAngle(angle).inverse() * sphere.centre;
     if (centre.z() <= sphere.radius) continue;

@@ -160,6 +160,17 @@ cv::Mat To8Bit(const cv::Mat& frame, int bit_depth) {
   return out;
 }
 
+cv::Mat NaturalImageOf(const StepSource& source, const cv::Mat& natural_frame) {
+  if (natural_frame.empty()) return cv::Mat();
+  cv::Mat natural = To8Bit(natural_frame, source.bit_depth());
+  if (source.bayer() && natural.channels() == 1) {
+    cv::Mat bgr;
+    cv::cvtColor(natural, bgr, cv::COLOR_BayerBG2BGR);
+    natural = bgr;
+  }
+  return natural;
+}
+
 std::array<uint8_t, 3> SampleRgb(const cv::Mat& image, double column, double row) {
   ROTOSCAN_CHECK(!image.empty() && image.depth() == CV_8U);
   const int channels = image.channels();
@@ -287,18 +298,6 @@ Result<cv::Mat> OffFrameOf(const StepContext& ctx, const StepFrames& f, bool use
                                 std::to_string(on8.channels()));
   }
   return ctx.background.dark ? dark_frame : cv::Mat(cv::Mat::zeros(on8.size(), on8.type()));
-}
-
-// The step's natural frame in 8 bits, demosaiced when the source is Bayer raw; empty when there is none.
-cv::Mat NaturalImageOf(const StepSource& source, const cv::Mat& natural_frame) {
-  if (natural_frame.empty()) return cv::Mat();
-  cv::Mat natural = To8Bit(natural_frame, source.bit_depth());
-  if (source.bayer() && natural.channels() == 1) {
-    cv::Mat bgr;
-    cv::cvtColor(natural, bgr, cv::COLOR_BayerBG2BGR);
-    natural = bgr;
-  }
-  return natural;
 }
 
 // The line of laser `l` in `laser_frame` against `off`, triangulated on that laser's plane (eq. 5-6) and

@@ -143,6 +143,9 @@ std::string FormatSummary(const ProcessSummary& summary);
 // Converts a stored frame to 8 bits (16-bit frames of `bit_depth` bits are scaled to 0..255).
 cv::Mat To8Bit(const cv::Mat& frame, int bit_depth);
 
+// A natural frame of `source` in 8 bits, demosaiced when the source is Bayer raw; empty when `natural_frame` is.
+cv::Mat NaturalImageOf(const StepSource& source, const cv::Mat& natural_frame);
+
 // Bilinear sample of an 8-bit BGR (or gray) image at (column, row) as RGB; clamped at the border.
 std::array<uint8_t, 3> SampleRgb(const cv::Mat& image, double column, double row);
 
