@@ -81,6 +81,31 @@ Errors ErrorsOf(const geometry::Rig& rig, const geometry::Rig& truth) {
   e.axis_deg = AxisAngleDeg(rig, truth);
   return e;
 }
+// Renders the demo's three board placements on a table that slips by up to kSlipDeg (in `mode`), every frame
+// through JPEG; appends each bundle and its true table angles.
+void RenderSlippingTable(const ScratchDir& dir, int steps, sim::SlipMode mode,
+                         std::vector<std::filesystem::path>* bundles,
+                         std::vector<std::vector<bundle::TableAngle>>* angles) {
+  for (const char* name : {"calibration.json", "calibration-2.json", "calibration-3.json"}) {
+    Result<sim::Scene> scene = sim::LoadScene(DataPath(std::string("scenes/") + name));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    sim::SimulateOptions options;
+    options.out = dir / name;
+    options.kind = sim::SimulateKind::kTableCheckerboard;
+    options.steps = steps;
+    options.table_slip_deg = kSlipDeg;
+    options.table_slip_mode = mode;
+    const Status simulated = sim::Simulate(*scene, options, nullptr);
+    ASSERT_TRUE(simulated.ok()) << simulated.ToString();
+    ASSERT_NO_FATAL_FAILURE(JpegRoundTrip(options.out));
+    Result<std::vector<bundle::TableAngle>> truth =
+        bundle::ReadTableAngles(bundle::TruthTableAnglesPath(options.out));
+    ASSERT_TRUE(truth.ok()) << truth.status().ToString();
+    angles->push_back(*truth);
+    bundles->push_back(options.out);
+  }
+}
+
 void Print(const char* what, const calib::RigCalibrationSummary& s, const Errors& e) {
   std::printf(
       "%s: reprojection %.3f px, views over 1 px %d, predicted point error %.4f mm (max %.4f) at "
@@ -106,23 +131,7 @@ TEST(SlippingTableTest, RefinedTableAnglesRecoverTheSlipAndTheReportJudgesTheSca
   ScratchDir dir;
   std::vector<std::filesystem::path> bundles;
   std::vector<std::vector<bundle::TableAngle>> angles;
-  for (const char* name : {"calibration.json", "calibration-2.json", "calibration-3.json"}) {
-    Result<sim::Scene> scene = sim::LoadScene(DataPath(std::string("scenes/") + name));
-    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
-    sim::SimulateOptions options;
-    options.out = dir / name;
-    options.kind = sim::SimulateKind::kTableCheckerboard;
-    options.steps = kSteps;
-    options.table_slip_deg = kSlipDeg;
-    const Status simulated = sim::Simulate(*scene, options, nullptr);
-    ASSERT_TRUE(simulated.ok()) << simulated.ToString();
-    ASSERT_NO_FATAL_FAILURE(JpegRoundTrip(options.out));
-    Result<std::vector<bundle::TableAngle>> truth =
-        bundle::ReadTableAngles(bundle::TruthTableAnglesPath(options.out));
-    ASSERT_TRUE(truth.ok()) << truth.status().ToString();
-    angles.push_back(*truth);
-    bundles.push_back(options.out);
-  }
+  ASSERT_NO_FATAL_FAILURE(RenderSlippingTable(dir, kSteps, sim::SlipMode::kIndependent, &bundles, &angles));
   Result<geometry::Rig> truth_rig = geometry::ReadRigYaml(bundle::TruthRigPath(bundles[0]));
   ASSERT_TRUE(truth_rig.ok()) << truth_rig.status().ToString();
   const geometry::Rig& truth = *truth_rig;
@@ -230,24 +239,7 @@ TEST(SlippingTableTest, CumulativeSlipRefinedWithAPriorOnEachMove) {
   ScratchDir dir;
   std::vector<std::filesystem::path> bundles;
   std::vector<std::vector<bundle::TableAngle>> angles;
-  for (const char* name : {"calibration.json", "calibration-2.json", "calibration-3.json"}) {
-    Result<sim::Scene> scene = sim::LoadScene(DataPath(std::string("scenes/") + name));
-    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
-    sim::SimulateOptions options;
-    options.out = dir / name;
-    options.kind = sim::SimulateKind::kTableCheckerboard;
-    options.steps = steps;
-    options.table_slip_deg = kSlipDeg;
-    options.table_slip_mode = sim::SlipMode::kCumulative;
-    const Status simulated = sim::Simulate(*scene, options, nullptr);
-    ASSERT_TRUE(simulated.ok()) << simulated.ToString();
-    ASSERT_NO_FATAL_FAILURE(JpegRoundTrip(options.out));
-    Result<std::vector<bundle::TableAngle>> truth =
-        bundle::ReadTableAngles(bundle::TruthTableAnglesPath(options.out));
-    ASSERT_TRUE(truth.ok()) << truth.status().ToString();
-    angles.push_back(*truth);
-    bundles.push_back(options.out);
-  }
+  ASSERT_NO_FATAL_FAILURE(RenderSlippingTable(dir, steps, sim::SlipMode::kCumulative, &bundles, &angles));
   Result<geometry::Rig> truth_rig = geometry::ReadRigYaml(bundle::TruthRigPath(bundles[0]));
   ASSERT_TRUE(truth_rig.ok()) << truth_rig.status().ToString();
   Result<calib::CalibrationData> observed = ObservationsFromBundles(bundles, nullptr);
