@@ -4,6 +4,8 @@
 // AVX2 and SSSE3 paths against the SSE2 one (internal::AllowVectorExtensions); on x86-64 the portable
 // kernels run nowhere else.
 #include <algorithm>
+#include <cmath>
+#include <cstring>
 #include <cstdint>
 #include <limits>
 #include <random>
@@ -12,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include "laser/kernels.h"
+#include "rotoscan/laser/extract.h"
 
 namespace rotoscan::laser::detail {
 namespace {
@@ -153,6 +156,63 @@ TEST(KernelsTest, SmoothingScreensMatchPortable) {
 }
 
 #endif  // __SSE2__
+
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+// ScorePoints with its AVX2 kernel (4 points at a time) against its scalar loop, field by field and bit for
+// bit, on random terms: lopsided and flagged points, rows with and without neighbours, frames with and
+// without a noise estimate, and point counts that leave a remainder for the scalar loop.
+TEST(KernelsTest, ScorePointsAvx2MatchesScalar) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(23);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  for (int trial = 0; trial < 400; ++trial) {
+    const size_t n = std::uniform_int_distribution<size_t>(0, 41)(rng);
+    std::vector<PointTerms> terms(n);
+    std::vector<LinePoint> points(n);
+    int row = std::uniform_int_distribution<int>(0, 3)(rng);
+    for (size_t i = 0; i < n; ++i) {
+      PointTerms& t = terms[i];
+      const double width = 1 + 20 * unit(rng);
+      t.width_den = std::uniform_int_distribution<int>(1, 5000)(rng);
+      t.width_num = std::round(width * t.width_den);
+      t.column = 600 + 10 * unit(rng);
+      t.extent_middle = t.column + (unit(rng) < 0.3 ? 0.5 * width : 0.1) * (unit(rng) - 0.5);
+      t.peak = std::uniform_int_distribution<int>(1, 255)(rng);
+      t.left_n = std::uniform_int_distribution<int>(1, 12)(rng);
+      t.right_n = std::uniform_int_distribution<int>(1, 12)(rng);
+      t.left = unit(rng) < 0.2 ? 0 : std::uniform_int_distribution<int>(0, 255)(rng) * t.left_n;
+      t.right = std::uniform_int_distribution<int>(0, 255)(rng) * t.right_n;
+      t.overexposed = false;
+      LinePoint& p = points[i];
+      row += unit(rng) < 0.8 ? 1 : std::uniform_int_distribution<int>(2, 4)(rng);
+      p.row = row;
+      p.column = static_cast<float>(t.column);
+      p.peak = static_cast<float>(t.peak);
+      p.flags = static_cast<uint8_t>(std::uniform_int_distribution<int>(0, 255)(rng) & 0x7f);
+    }
+    FrameScale frame;
+    frame.noise_dn = trial % 5 == 0 ? 0.0 : 3 * unit(rng);
+    frame.threshold = std::uniform_int_distribution<int>(1, 60)(rng);
+    frame.quality_per_snr = frame.noise_dn > 0 ? 1.0 / (frame.noise_dn * 32) : 0.0;
+    frame.quality_per_contrast = 1.0 / std::max(1.0, 2.0 * frame.threshold);
+    frame.narrow_width = 3 * unit(rng);
+    frame.wide_width = 8 + 8 * unit(rng);
+    std::vector<LinePoint> scalar_points = points, avx2_points = points;
+    internal::AllowVectorExtensions(false, false);
+    ScorePoints(terms.data(), frame, &scalar_points);
+    internal::AllowVectorExtensions(true, true);
+    ScorePoints(terms.data(), frame, &avx2_points);
+    for (size_t i = 0; i < n; ++i) {
+      const LinePoint &a = scalar_points[i], &b = avx2_points[i];
+      // Bit for bit (memcmp: a NaN would fail an equality test, -0.0 and 0.0 pass one).
+      ASSERT_EQ(0, std::memcmp(&a.width, &b.width, sizeof(float))) << "trial " << trial << " point " << i;
+      ASSERT_EQ(0, std::memcmp(&a.quality, &b.quality, sizeof(float))) << "trial " << trial << " point " << i;
+      ASSERT_EQ(0, std::memcmp(&a.uncertainty_px, &b.uncertainty_px, sizeof(float))) << "trial " << trial << " point " << i;
+      ASSERT_EQ(a.flags, b.flags) << "trial " << trial << " point " << i;
+    }
+  }
+}
+#endif  // ROTOSCAN_HAVE_SSSE3_PATH
 
 }  // namespace
 }  // namespace rotoscan::laser::detail

@@ -5,7 +5,8 @@
 //  * kernels_sse2.simd.hpp    the x86-64 baseline, inlined into the row loop (the candidates' extent, peak
 //                             and centre scans run per candidate, so a call each would cost);
 //  * kernels_ssse3.cc         dispatched at run time: a color row's channel by byte shuffles;
-//  * kernels_avx2.cc          dispatched at run time: the row pass, the smoothing's fits and screens.
+//  * kernels_avx2.cc          dispatched at run time: the row pass, the smoothing's fits and screens,
+//                             the points' scores.
 // Which run-time paths are used: HaveSsse3(), HaveAvx2() (dispatch.cc), which the tests can turn off
 // (internal::AllowVectorExtensions) to run each path; every path gives the same result bit for bit.
 #pragma once
@@ -87,6 +88,9 @@ __attribute__((target("avx2"))) void FlaggedOutliersAvx2(const float* raw, const
 __attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, const double* pjy, const double* pjjy, int k0, int k1, int h,
                            bool slope, double inv_s0, double inv_s2, double origin, double* fit_a, double* fit_b,
                            float* af, float* bf);
+// ScorePoints (point.cc) of the points [0, n - n % 4), 4 at a time, bit for bit; returns how many.
+__attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* terms, const FrameScale& frame, LinePoint* points,
+                                                       size_t n);
 #endif
 
 }  // namespace rotoscan::laser::detail

@@ -207,8 +207,12 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points) {
   const size_t n = points->size();
   LinePoint* p = points->data();
-  float before = 0.0f;  // the previous point's column (the slope's, below)
-  for (size_t i = 0; i < n; ++i) {
+  size_t i = 0;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  if (HaveAvx2()) i = ScorePointsAvx2(terms, frame, p, n);  // this loop, 4 points at a time (kernels.h)
+#endif
+  float before = i > 0 ? p[i - 1].column : 0.0f;  // the previous point's column (the slope's, below)
+  for (; i < n; ++i) {
     const PointTerms& t = terms[i];
     const double width = t.width_num / t.width_den;
     // Uncertainty (see the design notes): noise, speckle and the profile's asymmetry.
