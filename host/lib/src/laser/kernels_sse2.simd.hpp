@@ -83,6 +83,16 @@ inline int ExtentLeft(const uint8_t* d, int at, int min_value) {
   }
 }
 
+// The largest byte of a vector in all 16 lanes: a butterfly of maxima that never leaves the vector
+// registers (MaxByte then _mm_set1_epi8 took the byte to a general register and back, ~8 cycles more on
+// the path of every candidate, twice in FillPlateau: laser_bench).
+inline __m128i MaxByteAll(__m128i v) {
+  v = _mm_max_epu8(v, _mm_shuffle_epi32(v, 0x4e));  // swap the 64-bit halves
+  v = _mm_max_epu8(v, _mm_shuffle_epi32(v, 0xb1));  // swap the 32-bit words within them
+  v = _mm_max_epu8(v, _mm_or_si128(_mm_slli_epi32(v, 16), _mm_srli_epi32(v, 16)));  // 16-bit halves
+  return _mm_max_epu8(v, _mm_or_si128(_mm_slli_epi16(v, 8), _mm_srli_epi16(v, 8)));  // bytes
+}
+
 // The highest value of d over [first, last] and the first pixel holding it. The row must be padded with
 // kPad zero bytes after its end (the vector loads may run past `last`; those lanes are cleared).
 inline PeakInRun FindPeak(const uint8_t* d, int first, int last) {
@@ -95,13 +105,9 @@ inline PeakInRun FindPeak(const uint8_t* d, int first, int last) {
   };
   __m128i best = _mm_setzero_si128();
   for (int k = 0; k < length; k += 16) best = _mm_max_epu8(best, load(k));
-  best = _mm_max_epu8(best, _mm_srli_si128(best, 8));
-  best = _mm_max_epu8(best, _mm_srli_si128(best, 4));
-  best = _mm_max_epu8(best, _mm_srli_si128(best, 2));
-  best = _mm_max_epu8(best, _mm_srli_si128(best, 1));
+  const __m128i target = MaxByteAll(best);
   PeakInRun peak;
-  peak.value = _mm_cvtsi128_si32(best) & 0xff;
-  const __m128i target = _mm_set1_epi8(static_cast<char>(peak.value));
+  peak.value = _mm_cvtsi128_si32(target) & 0xff;
   for (int k = 0; k < length; k += 16) {
     const unsigned hits = static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(load(k), target)));
     if (hits != 0) {
@@ -155,7 +161,7 @@ inline PeakInRun FillPlateau(const uint8_t* a, const uint8_t* b, uint8_t* d, int
     any = _mm_or_si128(any, saturated);
   });
   if (_mm_movemask_epi8(any) == 0) return FindPeak(d, first, last);  // nothing saturated: nothing to fill
-  const __m128i level = _mm_set1_epi8(static_cast<char>(MaxByte(plateau)));
+  const __m128i level = MaxByteAll(plateau);
   const __m128i headroom = _mm_set1_epi8(static_cast<char>(255 - threshold));
   // The peak from the filled vectors themselves while the run has at most kKept blocks: reading the row
   // back right after these stores, at other offsets, would wait for each store to land (no forwarding).
@@ -183,9 +189,9 @@ inline PeakInRun FillPlateau(const uint8_t* a, const uint8_t* b, uint8_t* d, int
     ++blocks;
   });
   if (blocks > kKept) return FindPeak(d, first, last);
+  const __m128i target = MaxByteAll(best);
   PeakInRun peak;
-  peak.value = MaxByte(best);
-  const __m128i target = _mm_set1_epi8(static_cast<char>(peak.value));
+  peak.value = _mm_cvtsi128_si32(target) & 0xff;
   for (int k = 0; k < blocks; ++k) {  // the first lane at the peak, blocks in increasing order
     const unsigned hits = kept_lanes[k] & static_cast<unsigned>(_mm_movemask_epi8(_mm_cmpeq_epi8(kept[k], target)));
     if (hits != 0) {
