@@ -94,6 +94,13 @@ TEST(KernelsTest, Sse2MatchesPortableOnRandomRows) {
       ASSERT_EQ(notch_portable.best_difference, notch_sse2.best_difference);
       ASSERT_EQ(notch_portable.worst_saturated, notch_sse2.worst_saturated);
       ASSERT_EQ(scalar::SumRange(off.data(), first, last, cols), sse2::SumRange(off.data(), first, last, cols));
+      // Over the laser-off row itself (no padding: an exact-size copy, so that an ASan build sees any read
+      // outside [first, last]).
+      const std::vector<uint8_t> stretch(off.begin() + first, off.begin() + last + 1);
+      const ByteRange range_portable = scalar::MinMaxRange(stretch.data(), 0, last - first);
+      const ByteRange range_sse2 = sse2::MinMaxRange(stretch.data(), 0, last - first);
+      ASSERT_EQ(range_portable.low, range_sse2.low);
+      ASSERT_EQ(range_portable.high, range_sse2.high);
       // Either side may be empty, never outside the row.
       const int middle = std::uniform_int_distribution<int>(std::max(first - 2, -1), std::min(last + 2, cols))(rng);
       const SidesSum sides_portable = scalar::SumsAround(off.data(), first, middle, last, cols);

@@ -86,6 +86,11 @@ struct SidesSum {
   int left = 0, right = 0;
 };
 
+// MinMaxRange's result (kernels.h): the lowest and highest value of a stretch of a row.
+struct ByteRange {
+  int low = 255, high = 0;
+};
+
 struct Candidate {
   int peak_pos = 0;  // first pixel at the peak value
   int peak = 0;

@@ -77,6 +77,16 @@ inline NotchScan ScanNotch(const uint8_t* a, const uint8_t* b, int first, int la
   return scan;
 }
 
+// The lowest and highest b[i] over [first, last] (255 and 0 when last < first); reads nothing outside it.
+inline ByteRange MinMaxRange(const uint8_t* b, int first, int last) {
+  ByteRange range;
+  for (int i = first; i <= last; ++i) {
+    range.low = std::min(range.low, int{b[i]});
+    range.high = std::max(range.high, int{b[i]});
+  }
+  return range;
+}
+
 // The sum of b[i] over [first, last] (0 when last < first) in a row of `cols` pixels.
 inline int SumRange(const uint8_t* b, int first, int last, int /*cols*/) {
   int sum = 0;

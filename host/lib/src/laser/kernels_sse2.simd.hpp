@@ -220,6 +220,27 @@ inline NotchScan ScanNotch(const uint8_t* a, const uint8_t* b, int first, int la
   return scan;
 }
 
+// MinMaxRange (kernels_scalar.simd.hpp), 16 pixels at a time: the stretch's whole blocks from `first`,
+// then one block ending at `last` (overlapping the one before: a minimum and a maximum do not mind), so
+// that nothing outside [first, last] is read (b is a frame's row, without padding).
+inline ByteRange MinMaxRange(const uint8_t* b, int first, int last) {
+  if (last - first + 1 < 16) return scalar::MinMaxRange(b, first, last);
+  __m128i low = _mm_set1_epi8(-1), high = _mm_setzero_si128();
+  auto take = [&](int at) {
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + at));
+    low = _mm_min_epu8(low, v);
+    high = _mm_max_epu8(high, v);
+  };
+  int i = first;
+  for (; i + 16 <= last + 1; i += 16) take(i);
+  if (i <= last) take(last - 15);
+  const __m128i all = _mm_set1_epi8(-1);
+  ByteRange range;
+  range.high = MaxByte(high);
+  range.low = 255 - MaxByte(_mm_xor_si128(low, all));  // min(x) = 255 - max(255 - x)
+  return range;
+}
+
 // SumRange (kernels_scalar.simd.hpp), 16 pixels at a time.
 inline int SumRange(const uint8_t* b, int first, int last, int cols) {
   if (cols < 16) return scalar::SumRange(b, first, last, cols);

@@ -83,11 +83,8 @@ struct AlbedoKernel {
 
 bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
   if (last - first < 3) return false;
-  int low = 255, high = 0;
-  for (int i = first; i <= last; ++i) {
-    low = std::min(low, int{b[i]});
-    high = std::max(high, int{b[i]});
-  }
+  const ByteRange range = MinMaxRange(b, first, last);  // kernels.h
+  const int low = range.low, high = range.high;
   if (!(low >= kAlbedoMinLowDn && high >= kAlbedoMinOffDn && 5 * high > 8 * low + 5 * kAlbedoStepDn)) return false;
   // An edge, not shading: the steepest change over kAlbedoEdgeSpanPx pixels holds at least half of the
   // range. Shading (a limb, a surface turning away from the lamp) ramps over many pixels, and the laser,
