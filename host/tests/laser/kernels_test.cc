@@ -12,6 +12,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
 
 #include "laser/kernels.h"
 #include "rotoscan/laser/extract.h"
@@ -218,6 +219,63 @@ TEST(KernelsTest, ScorePointsAvx2MatchesScalar) {
       ASSERT_EQ(a.flags, b.flags) << "trial " << trial << " point " << i;
     }
   }
+}
+
+// The whole extraction with every vector extension the CPU has against SSE2 alone, every field of every
+// point bit for bit: saturated lines with notches, weak wide ones, two lines in a row, noise, rows
+// narrower than a vector, every estimator, smoothing on and off.
+TEST(KernelsTest, ExtractionIsBitIdenticalOnEveryPath) {
+  std::vector<std::pair<cv::Mat, cv::Mat>> pairs;
+  std::mt19937 rng(31);
+  std::uniform_int_distribution<int> byte(0, 255), coin(0, 5);
+  for (int i = 0; i < 8; ++i) {
+    const int cols = i % 4 == 3 ? 13 : std::uniform_int_distribution<int>(40, 700)(rng), rows = 96;
+    cv::Mat on(rows, cols, CV_8UC1), off(rows, cols, CV_8UC1);
+    for (int r = 0; r < rows; ++r) {
+      const int c1 = cols / 2 + static_cast<int>(cols / 3 * std::sin(0.05 * r + i));
+      const int c2 = std::uniform_int_distribution<int>(0, cols - 1)(rng);
+      const int amp2 = std::uniform_int_distribution<int>(10, 300)(rng), wide = std::uniform_int_distribution<int>(1, 40)(rng);
+      for (int x = 0; x < cols; ++x) {
+        const int b = i % 4 == 1 ? 250 : (coin(rng) == 0 ? byte(rng) : 40 + (x * 7) % 50);
+        int a = b + std::max(0, 300 - 30 * std::abs(x - c1)) + std::max(0, amp2 - amp2 * std::abs(x - c2) / wide) + coin(rng);
+        if (coin(rng) == 0) a = byte(rng);
+        off.at<uint8_t>(r, x) = static_cast<uint8_t>(b);
+        on.at<uint8_t>(r, x) = static_cast<uint8_t>(std::min(a, 255));
+      }
+    }
+    pairs.emplace_back(on, off);
+  }
+  auto extract_all = [&](bool wide, Estimator estimator, int smooth) {
+    internal::AllowVectorExtensions(wide, wide);
+    ExtractOptions options;
+    options.estimator = estimator;
+    options.smooth_half_rows = smooth;
+    LineExtractor extractor(options);
+    std::vector<Line> lines(pairs.size());
+    for (size_t k = 0; k < pairs.size(); ++k) EXPECT_TRUE(extractor.Extract(pairs[k].first, pairs[k].second, &lines[k]).ok());
+    internal::AllowVectorExtensions(true, true);
+    return lines;
+  };
+  size_t points = 0;
+  for (Estimator estimator : {Estimator::kCenterOfMass, Estimator::kParabolic, Estimator::kGaussian, Estimator::kZeroCrossing}) {
+    for (int smooth : {0, 12}) {
+      const std::vector<Line> wide = extract_all(true, estimator, smooth), narrow = extract_all(false, estimator, smooth);
+      for (size_t k = 0; k < pairs.size(); ++k) {
+        ASSERT_EQ(wide[k].points.size(), narrow[k].points.size()) << "frame " << k;
+        for (size_t j = 0; j < wide[k].points.size(); ++j) {
+          const LinePoint &a = wide[k].points[j], &b = narrow[k].points[j];
+          const bool same = a.row == b.row && a.flags == b.flags && std::memcmp(&a.column, &b.column, 4) == 0 &&
+                            std::memcmp(&a.peak, &b.peak, 4) == 0 && std::memcmp(&a.width, &b.width, 4) == 0 &&
+                            std::memcmp(&a.quality, &b.quality, 4) == 0 &&
+                            std::memcmp(&a.uncertainty_px, &b.uncertainty_px, 4) == 0;
+          ASSERT_TRUE(same) << "estimator " << EstimatorName(estimator) << " smooth " << smooth << " frame " << k
+                            << " point " << j;
+        }
+        points += wide[k].points.size();
+      }
+    }
+  }
+  EXPECT_GT(points, 1000u);  // the frames hold lines
 }
 #endif  // ROTOSCAN_HAVE_SSSE3_PATH
 

@@ -206,7 +206,9 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
   LinePoint* p = points->data();
   size_t i = 0;
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
-  if (HaveAvx2()) i = ScorePointsAvx2(terms, frame, p, n);  // this loop, 4 points at a time (kernels.h)
+  // This loop, 4 points at a time (kernels_avx2.cc): a change here must be made there too
+  // (KernelsTest.ScorePointsAvx2MatchesScalar compares them bit for bit).
+  if (HaveAvx2()) i = ScorePointsAvx2(terms, frame, p, n);
 #endif
   float before = i > 0 ? p[i - 1].column : 0.0f;  // the previous point's column (the slope's, below)
   for (; i < n; ++i) {
