@@ -175,6 +175,9 @@ TEST(PlacementsTest, BadInputIsRefused) {
   bad = AlignOptions();
   bad.min_overlap = 2;
   EXPECT_FALSE(bad.Check().ok());
+  bad = AlignOptions();
+  bad.tukey_constant = std::nan("");
+  EXPECT_FALSE(bad.Check().ok());
 }
 
 TEST(PlacementsTest, PoseHintsParse) {
