@@ -16,7 +16,8 @@
 // `neighbours` were found within `radius_mm` and its mean distance is at most `local_ratio` x the median of
 // theirs (a density-relative test, as the local outlier factor of Breunig et al., SIGMOD 2000): its
 // neighbourhood is sampled as sparsely as itself. A stray point off the surface is far from the surface
-// points around it (their own distances are small) or has no neighbours at all, and still goes.
+// points around it (their own distances are small) or has no neighbours at all, and still goes; one inside a
+// sparsely scanned region, as far from the surface points as they are from each other, stays.
 //
 // Voxel thinning: one point per cube of `voxel_mm` (the one of highest quality, so that its laser, table
 // step and normal stay its own: meshing uses them). Off by default.
