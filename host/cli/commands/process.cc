@@ -95,9 +95,13 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
   auto clean = cloud::FilterCloud(result->cloud, filter, &filtered);
   if (!clean.ok()) return fail(clean.status());
   *context.out << pipeline::FormatSummary(result->summary);
-  char line[200];
-  std::snprintf(line, sizeof(line), "filter: %zu outliers removed (mean distance to %d neighbours > %.3f mm), %zu thinned\n",
-                filtered.outliers, filter.neighbours, filtered.outlier_threshold_mm, filtered.thinned);
+  char line[300];
+  std::snprintf(
+      line, sizeof(line),
+      "filter: %zu outliers removed (mean distance to %d neighbours > %.3f mm, and over %.3g x their "
+      "own: %zu more kept as sparse as around them), %zu thinned\n",
+      filtered.outliers, filter.neighbours, filtered.outlier_threshold_mm, filter.local_ratio,
+      filtered.kept_sparse, filtered.thinned);
   *context.out << (filter.remove_outliers || filter.thin_voxel_mm > 0 ? line : "filter: off\n");
   if (clean->empty()) return fail(NotFoundError("no point survived the filter: nothing written"));
   const Status written = cloud::WritePly(o.out, *clean);
@@ -124,13 +128,20 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_flag("--no-merge", o.no_merge, "keep both lasers' points where they overlap");
   sub->add_flag("--keep-outliers", o.keep_outliers,
                 "no statistical outlier removal (by default a point goes when its mean distance to its "
-                "nearest neighbours is over mean + ratio x std of the cloud's)");
+                "nearest neighbours is over mean + ratio x std of the cloud's and local-ratio x its "
+                "neighbours')");
   sub->add_option("--outlier-neighbours", o.filter.neighbours, "outlier removal: neighbours per point")
       ->capture_default_str();
   sub->add_option("--outlier-ratio", o.filter.std_ratio, "outlier removal: standard deviations allowed")
       ->capture_default_str();
   sub->add_option("--outlier-radius", o.filter.radius_mm,
                   "outlier removal: neighbour search radius, mm (a missing neighbour counts as this far)")
+      ->capture_default_str();
+  sub->add_option(
+         "--outlier-local-ratio", o.filter.local_ratio,
+         "outlier removal: a point over the threshold stays when its mean distance is at most this "
+         "x its neighbours' (as sparse as around it: lines crossing the surface at a grazing angle); "
+         "0: off")
       ->capture_default_str();
   sub->add_option("--thin", o.filter.thin_voxel_mm,
                   "keep one point (the best) per voxel of this edge, mm (0: no thinning)")

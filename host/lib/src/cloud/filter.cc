@@ -31,6 +31,8 @@ Status FilterOptions::Check() const {
     return InvalidArgumentError("outlier std ratio must be in (0, 100]");
   if (!(radius_mm >= 0.01 && radius_mm <= 100))
     return InvalidArgumentError("outlier radius must be 0.01..100 mm");
+  if (!(local_ratio >= 0 && local_ratio <= 100))
+    return InvalidArgumentError("outlier local ratio must be 0 (off) or in (0, 100]");
   if (!(thin_voxel_mm == 0 || (thin_voxel_mm >= 0.01 && thin_voxel_mm <= 100)))
     return InvalidArgumentError("thinning voxel must be 0 (off) or 0.01..100 mm");
   if (threads < 0 || threads > 256) return InvalidArgumentError("threads must be 0..256");
@@ -87,8 +89,32 @@ Result<PointCloud> FilterCloud(const PointCloud& cloud, const FilterOptions& opt
     for (float v : mean) m2 += (v - m) * (v - m);
     const double sd = std::sqrt(m2 / static_cast<double>(mean.size()));
     s.outlier_threshold_mm = m + options.std_ratio * sd;
+    // Over the threshold but no sparser than its neighbours (filter.h): at least half of `neighbours` found
+    // within the radius, and its mean distance at most local_ratio x the median of theirs.
+    auto as_sparse_as_around = [&](size_t i) {
+      if (options.local_ratio <= 0) return false;
+      const Eigen::Vector3f& p = cloud.points[i].position_in_table;
+      std::vector<std::pair<float, uint32_t>> near;
+      grid.ForEachNear(p, [&](uint32_t j) {
+        if (j == i) return;
+        const float e = (cloud.points[j].position_in_table - p).squaredNorm();
+        if (e <= r * r) near.emplace_back(e, j);
+      });
+      if (2 * near.size() < k) return false;
+      const size_t found = std::min(k, near.size());
+      std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(found), near.end());
+      std::vector<float> theirs(found);
+      for (size_t n = 0; n < found; ++n) theirs[n] = mean[near[n].second];
+      std::nth_element(theirs.begin(), theirs.begin() + static_cast<std::ptrdiff_t>(found / 2), theirs.end());
+      return mean[i] <= options.local_ratio * theirs[found / 2];
+    };
     for (size_t i = 0; i < cloud.size(); ++i) {
-      if (mean[i] <= s.outlier_threshold_mm) kept.push_back(static_cast<uint32_t>(i));
+      if (mean[i] <= s.outlier_threshold_mm) {
+        kept.push_back(static_cast<uint32_t>(i));
+      } else if (as_sparse_as_around(i)) {
+        kept.push_back(static_cast<uint32_t>(i));
+        ++s.kept_sparse;
+      }
     }
     s.outliers = cloud.size() - kept.size();
   } else {

@@ -14,6 +14,7 @@
 #include <open3d/pipelines/registration/CorrespondenceChecker.h>
 #include <open3d/pipelines/registration/Feature.h>
 #include <open3d/pipelines/registration/Registration.h>
+#include <open3d/pipelines/registration/RobustKernel.h>
 #include <open3d/pipelines/registration/TransformationEstimation.h>
 #include <open3d/utility/Random.h>
 
@@ -66,6 +67,50 @@ Eigen::Isometry3d Refine(const O3dCloud& source, const O3dCloud& target, Eigen::
                              reg::ICPConvergenceCriteria(1e-7, 1e-7, iterations));
     if (r.correspondence_set_.size() >= 3) start = FromMatrix(r.transformation_);
   }
+  return start;
+}
+
+// Robust scale of the point-to-plane residuals n_q . (q - t p) of `source` moved by `t` against its nearest
+// `target` point within `distance` (mm): 1.4826 x their median absolute value, the standard deviation for
+// Gaussian residuals (0 without pairs).
+double ResidualScale(const O3dCloud& source, const O3dCloud& target,
+                     const open3d::geometry::KDTreeFlann& tree, const Eigen::Isometry3d& t, double distance) {
+  std::vector<int> index(1);
+  std::vector<double> distance2(1);
+  std::vector<double> residuals;
+  residuals.reserve(source.points_.size());
+  for (const Eigen::Vector3d& p : source.points_) {
+    const Eigen::Vector3d q = t * p;
+    if (tree.SearchHybrid(q, distance, 1, index, distance2) < 1) continue;
+    const auto j = static_cast<size_t>(index[0]);
+    residuals.push_back(std::abs(target.normals_[j].dot(target.points_[j] - q)));
+  }
+  if (residuals.empty()) return 0;
+  const auto middle = residuals.begin() + static_cast<std::ptrdiff_t>(residuals.size() / 2);
+  std::nth_element(residuals.begin(), middle, residuals.end());
+  return 1.4826 * *middle;
+}
+
+// The robust fine alignment (placements.h): point-to-plane ICP with Tukey's biweight, c = tukey_constant x
+// the residuals' robust scale, the scale estimated again after each round (at most 3, until it changes by
+// less than 1 %). `scale_mm` gets the last scale.
+Eigen::Isometry3d RefineRobust(const O3dCloud& source, const O3dCloud& target, Eigen::Isometry3d start,
+                               double distance, double tukey_constant, double* scale_mm) {
+  const open3d::geometry::KDTreeFlann tree(target);
+  double scale = ResidualScale(source, target, tree, start, distance);
+  for (int round = 0; round < 3 && scale > 0; ++round) {
+    const reg::RegistrationResult r = reg::RegistrationICP(
+        source, target, distance, start.matrix(),
+        reg::TransformationEstimationPointToPlane(std::make_shared<reg::TukeyLoss>(tukey_constant * scale)),
+        reg::ICPConvergenceCriteria(1e-9, 1e-9, 50));
+    if (r.correspondence_set_.size() < 3) break;
+    start = FromMatrix(r.transformation_);
+    const double next = ResidualScale(source, target, tree, start, distance);
+    const bool settled = std::abs(next - scale) < 0.01 * scale;
+    scale = next;
+    if (settled) break;
+  }
+  *scale_mm = scale;
   return start;
 }
 
@@ -135,6 +180,8 @@ Status AlignOptions::Check() const {
   if (!positive(distinct_deg) || !positive(distinct_mm)) {
     return InvalidArgumentError("align: distinct_deg and distinct_mm must be > 0");
   }
+  if (!(tukey_constant >= 0 && tukey_constant <= 100))
+    return InvalidArgumentError("align: tukey_constant must be in [0, 100] (0: no robust stage)");
   if (random_starts < 0 || random_starts > 10000)
     return InvalidArgumentError("align: random_starts in [0, 10000]");
   if (hint && !hint->matrix().allFinite()) return InvalidArgumentError("align: the hint is not finite");
@@ -250,6 +297,11 @@ Result<AlignResult> AlignClouds(const cloud::PointCloud& target, const cloud::Po
   } else {
     result.target_from_source =
         Refine(*source_fine, *target_fine, best, {coarse_distance, options.icp_distance_mm}, 50);
+    if (options.tukey_constant > 0) {
+      result.target_from_source =
+          RefineRobust(*source_fine, *target_fine, result.target_from_source, options.icp_distance_mm,
+                       options.tukey_constant, &result.residual_scale_mm);
+    }
   }
   const reg::RegistrationResult fit = reg::EvaluateRegistration(
       *source_fine, *target_fine, options.icp_distance_mm, result.target_from_source.matrix());
@@ -431,10 +483,12 @@ std::string FormatPlacementReport(const MergePlacementsResult& result) {
       const AlignResult& a = p.alignment;
       const Eigen::AngleAxisd aa(a.target_from_source.linear());
       out << ", aligned " << (a.from_hint ? "from the hint" : "automatically") << ": overlap "
-          << 100 * a.overlap << " %, residual " << a.residual_mm << " mm RMS; rotation "
-          << aa.angle() * 180 / kPi << " deg, translation " << a.target_from_source.translation().norm()
-          << " mm; ambiguity test: " << 100 * a.coarse_overlap << " % against " << 100 * a.alternative_overlap
-          << " % for the best distinct pose of " << a.alternatives_tried << " other starts";
+          << 100 * a.overlap << " %, residual " << a.residual_mm << " mm RMS";
+      if (a.residual_scale_mm > 0) out << " (point-to-plane scale " << a.residual_scale_mm << " mm, robust)";
+      out << "; rotation " << aa.angle() * 180 / kPi << " deg, translation "
+          << a.target_from_source.translation().norm() << " mm; ambiguity test: " << 100 * a.coarse_overlap
+          << " % against " << 100 * a.alternative_overlap << " % for the best distinct pose of "
+          << a.alternatives_tried << " other starts";
     }
     const cloud::LaserDisagreement& d = p.disagreement;
     if (d.pairs == 0) {

@@ -8,7 +8,14 @@
 //     and distance checks (Open3D's pipelines::registration, Debian's libopen3d-dev). With a hint
 //     (AlignOptions::hint) this stage is skipped and the hint is the start.
 //  2. Point-to-plane ICP from that start, coarse to fine (correspondence distance 8, 2, then
-//     icp_distance_mm; the last stage on the clouds thinned to fine_voxel_mm).
+//     icp_distance_mm; the last stage on the clouds thinned to fine_voxel_mm), then the same last stage
+//     robust (unless tukey_constant is 0): Tukey's biweight on the point-to-plane residuals with
+//     c = tukey_constant x their robust scale (1.4826 x the median |residual|, ~0.019 mm on the demo's
+//     scans; 4.685: 95 % efficiency for Gaussian residuals), the scale estimated again after each round
+//     (at most 3). Plain least squares is pulled by the pairs that are not the same surface (a source point
+//     where the target has a hole or an edge is paired up to icp_distance_mm away): on the demo's Spot
+//     (upright + nose down, 200 + 200 steps) the error against the true pose fell from 0.0060 mm / 0.013°
+//     to 0.0034 mm / 0.008°, on the best pair of poses from 0.010 mm / 0.026° to 0.0047 mm / 0.008°.
 //  3. Ambiguity: on the clouds thinned to 2 x voxel_mm, from the refined alignment turned by each of the
 //     24 rotations of a cube and by `random_starts` random rotations (about the source's centroid), ICP
 //     again; an alignment that ends more than distinct_deg / distinct_mm from the best and scores (its
@@ -49,6 +56,7 @@ struct AlignOptions {
   int ransac_iterations = 100000;
   double ransac_confidence = 0.999;
   double icp_distance_mm = 0.5;   // last ICP stage and the overlap's distance
+  double tukey_constant = 4.685;  // robust last stage: Tukey's c in residual scales (0: none)
   double min_overlap = 0.15;      // fraction of the source; less is refused
   double ambiguity_ratio = 0.85;  // a distinct alternative scoring at least this x the best: ambiguous
   double distinct_deg = 3.0;      // alternatives closer than this (and distinct_mm) are the same answer
@@ -64,6 +72,7 @@ struct AlignResult {
   Eigen::Isometry3d target_from_source = Eigen::Isometry3d::Identity();
   double overlap = 0;      // fraction of source points with a target point within icp_distance_mm
   double residual_mm = 0;  // RMS distance of those pairs
+  double residual_scale_mm = 0;  // robust scale of the point-to-plane residuals (0: no robust stage)
   bool from_hint = false;
   double global_fitness = 0;  // RANSAC's fitness (fraction of source points with an inlier), 0 with a hint
   // The ambiguity test's scores (overlap on the 2 x voxel_mm clouds within 2 x voxel_mm):
