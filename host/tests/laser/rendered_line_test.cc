@@ -147,6 +147,55 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
   }
 }
 
+
+// Issue 15: laser light scattered into a concavity (renderer.h, "Interreflection") makes a second, weaker
+// line along the inside corner of concave-webcam.json (two boards in a 90 degree V). The extractor must
+// keep the primary line: lit rows found and rows > 1 px off against the renderer's truth, with the bounce
+// on and off on the same frames' seeds, and no row's point on the bounce (> 3 px from the true line).
+TEST(RenderedLineTest, WebcamConcaveCornerKeepsThePrimaryLine) {
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/concave-webcam.json"));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  ASSERT_TRUE(scene->laser_interreflection);  // the webcam preset's default
+  sim::Scene without = *scene;
+  without.laser_interreflection = false;
+  LineExtractor extractor;
+  pipeline::LineAccuracy totals[2], far[2];
+  for (int bounce = 0; bounce < 2; ++bounce) {
+    auto renderer = sim::Renderer::Create(bounce != 0 ? *scene : without);
+    ASSERT_TRUE(renderer.ok());
+    for (int step = 0; step < 3; ++step) {
+      const double angle = (step - 1) * 20.0 * 3.14159265358979323846 / 180.0;  // -20, 0, 20 degrees
+      const sim::RenderedStep frames =
+          (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), {true, true, true, false});
+      for (int k = 0; k < 2; ++k) {
+        const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
+        Line line;
+        ASSERT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
+        totals[bounce].Add(pipeline::CompareWithTruth(line, truth, 1.0));
+        far[bounce].Add(pipeline::CompareWithTruth(line, truth, 3.0));
+      }
+    }
+  }
+  for (int bounce = 0; bounce < 2; ++bounce) {
+    const pipeline::LineAccuracy& t = totals[bounce];
+    const double lit = static_cast<double>(t.truth_rows);
+    std::printf("concave-webcam, bounce %s: lit rows %zu, found %.2f %%, > 1 px off %.3f %% (across the line "
+                "%.3f %%), > 3 px off %zu, spurious %zu, rms (within 1 px) %.3f px, mean %+.3f px\n",
+                bounce != 0 ? "on " : "off", t.truth_rows, 100.0 * (lit - t.missed) / lit,
+                100.0 * t.outliers / lit, 100.0 * t.across_outliers / lit, far[bounce].outliers, t.spurious,
+                t.rms_px(), t.mean_px());
+  }
+  const pipeline::LineAccuracy& on = totals[1];
+  const double lit = static_cast<double>(on.truth_rows);
+  EXPECT_GT(on.truth_rows, 2000u);
+  // What main's extractor does on these frames (2026-11-24): found 96.4 % (96.0 % without the bounce;
+  // issue 15's target is 98 %), > 3 px off 31 rows (28 without), > 1 px off 12.2 % (10.6 %). The bounce
+  // must not make it worse than that by more than a few rows; the target figures are rfext's (issue 15).
+  EXPECT_GE((lit - on.missed) / lit, 0.95);
+  EXPECT_LE(far[1].outliers, far[0].outliers + 10);      // points taken on the bounce instead of the line
+  EXPECT_LE(on.outliers, totals[0].outliers + on.truth_rows / 50);
+}
+
 }  // namespace
 }  // namespace rotoscan::laser
 

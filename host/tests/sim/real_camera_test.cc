@@ -245,9 +245,78 @@ TEST(RealCameraTest, MjpegAndRollingShutterFlicker) {
   EXPECT_GT(cv::norm(f1, f2, cv::NORM_L1) / static_cast<double>(f1.total() * 3), 1.0);
 }
 
+// Laser light scattered into a concavity (renderer.h, "Interreflection"): in concave-webcam.json's 90
+// degree inside corner each laser's line lies on one board, ~9 mm from the corner, and its diffuse bounce
+// lights the other board: a second, weaker line near the corner's edge, apart from the primary one. Noise,
+// speckle, MJPEG and flicker off, so that the bounce is the only difference between the two renders.
+TEST(RealCameraTest, InterreflectionAddsASecondWeakerLineInAConcavity) {
+  auto loaded = LoadScene(rotoscan::testing::DataPath("scenes/concave-webcam.json"));
+  ASSERT_TRUE(loaded.ok()) << loaded.status().ToString();
+  Scene scene = *loaded;
+  ASSERT_TRUE(scene.laser_interreflection);
+  scene.sensor.noise = false;
+  scene.sensor.jpeg_quality = 0;
+  scene.ambient_change = scene.ambient_flicker = 0;
+  for (LaserModel& l : scene.laser) l.f_number = l.speckle_contrast = 0;
+  Scene flat = scene;
+  flat.laser_interreflection = false;
+  auto with = Renderer::Create(scene);
+  auto without = Renderer::Create(flat);
+  ASSERT_TRUE(with.ok() && without.ok());
+  const FrameMask left = {true, false, true, false};
+  const RenderedStep a = (*with)->RenderStep(0.0, 1, left), b = (*without)->RenderStep(0.0, 1, left);
+  cv::Mat on[3], plain[3], off[3];
+  cv::split(a.frames[0], on);
+  cv::split(b.frames[0], plain);
+  cv::split(b.frames[2], off);
+  EXPECT_EQ(cv::norm(a.frames[2], b.frames[2], cv::NORM_INF), 0.0);  // the off frame has no laser
+  int rows = 0, apart = 0, min_bounce = 255, darker = 0;
+  double sum_bounce = 0, sum_ratio = 0;
+  for (int y = 0; y < on[2].rows; ++y) {
+    // The primary line: the row's brightest red difference without the bounce.
+    int line = 0;
+    for (int x = 0; x < on[2].cols; ++x) {
+      if (plain[2].at<uint8_t>(y, x) - off[2].at<uint8_t>(y, x) > plain[2].at<uint8_t>(y, line) - off[2].at<uint8_t>(y, line)) line = x;
+    }
+    const int line_peak = plain[2].at<uint8_t>(y, line) - off[2].at<uint8_t>(y, line);
+    if (line_peak < 60) continue;  // no line in this row
+    // The bounce: what it adds, at its strongest away from the line (> 20 px: past the line's width).
+    int bounce = 0, where = -1;
+    for (int x = 0; x < on[2].cols; ++x) {
+      const int added = on[2].at<uint8_t>(y, x) - plain[2].at<uint8_t>(y, x);
+      darker += added < 0;
+      if (std::abs(x - line) > 20 && added > bounce) bounce = added, where = x;
+    }
+    ++rows;
+    if (where < 0) continue;
+    ++apart;
+    min_bounce = std::min(min_bounce, bounce);
+    sum_bounce += bounce;
+    sum_ratio += static_cast<double>(bounce) / line_peak;
+    if (y == on[2].rows / 2) {
+      std::printf("row %d: line at %d (difference %d DN), bounce strongest at %d (+%d DN); red difference with "
+                  "the bounce every 4 px from the line:", y, line, line_peak, where, bounce);
+      for (int x = std::min(line, where) - 8; x <= std::max(line, where) + 8; x += 4)
+        std::printf(" %d", on[2].at<uint8_t>(y, x) - off[2].at<uint8_t>(y, x));
+      std::printf("\n");
+    }
+  }
+  std::printf("rows with a line: %d, with a bounce > 20 px from it: %d, bounce min %d DN, mean %.1f DN, "
+              "mean bounce / line %.3f; pixels made darker: %d\n",
+              rows, apart, min_bounce, sum_bounce / std::max(1, apart), sum_ratio / std::max(1, apart), darker);
+  EXPECT_GT(rows, 300);
+  EXPECT_EQ(apart, rows);  // a second line in every row of the corner...
+  EXPECT_GE(min_bounce, 3);
+  EXPECT_LT(sum_ratio / apart, 0.5);  // ...weaker than the first
+  // Light is only added, except in a few pixels where the raw red is clipped and the bounce's green
+  // (response 0.12) lowers the red output through the color matrix's negative term, as in a real camera.
+  EXPECT_LT(darker, rows / 4);
+}
+
 TEST(RealCameraTest, BadFieldsAreRefused) {
   for (const char* bad : {R"({"camera": {"jpeg_quality": 101}})", R"({"camera": {"jpeg_quality": 80, "bit_depth": 12}})",
                           R"({"lasers": {"left": {"f_number": 0.2}}})", R"({"light": {"ambient_flicker": 2}})",
+                          R"({"light": {"interreflection": 1}})",
                           R"({"objects": [{"type": "sphere", "specular": -1}]})",
                           R"({"objects": [{"type": "sphere", "checker_mm": "3"}]})"}) {
     auto scene = ParseScene(bad, ".", "bad");

@@ -344,6 +344,7 @@ Result<Scene> SceneDefaults(const std::string& preset) {
     s.line_time_us = 69.0;
     scene.ambient_change = 0.01;
     scene.ambient_flicker = 0.02;
+    scene.laser_interreflection = true;  // a second, weaker line in concavities (renderer.h)
     rig.axis_point_in_cam = Eigen::Vector3d(0, 0, 280) - 40.0 * rig.axis_direction_in_cam;
     scene.ambient = 0.6;
   } else if (preset != "machine_vision") {
@@ -422,7 +423,9 @@ Result<Scene> ParseScene(const std::string& json_text, const fs::path& base_dir,
     if (present) {
       Reader r(root["light"], "light");
       RETURN_IF(r.OnlyKeys(
-          {"ambient", "diffuse", "direction", "shadows", "ambient_change", "ambient_flicker", "flicker_hz"}));
+          {"ambient", "diffuse", "direction", "shadows", "ambient_change", "ambient_flicker", "flicker_hz",
+           "interreflection"}));
+      RETURN_IF(r.Bool("interreflection", &scene.laser_interreflection));
       RETURN_IF(r.Number("ambient_change", 0.0, 0.5, &scene.ambient_change));
       RETURN_IF(r.Number("ambient_flicker", 0.0, 1.0, &scene.ambient_flicker));
       RETURN_IF(r.Number("flicker_hz", 0.0, 1e4, &scene.flicker_hz));
