@@ -160,6 +160,7 @@ TEST(RenderedLineTest, WebcamConcaveCornerKeepsThePrimaryLine) {
   without.laser_interreflection = false;
   LineExtractor extractor;
   pipeline::LineAccuracy totals[2], far[2];
+  int far_on_boards[2][2] = {{0, 0}, {0, 0}};  // [bounce][on the boards]: points > 3 px off
   std::map<int, int> missed_by_object, lit_by_object;
   std::map<int, std::vector<int>> peaks_by_object;  // the red difference at the true centre, bounce on
   for (int bounce = 0; bounce < 2; ++bounce) {
@@ -188,6 +189,19 @@ TEST(RenderedLineTest, WebcamConcaveCornerKeepsThePrimaryLine) {
           }
         }
         far[bounce].Add(pipeline::CompareWithTruth(line, truth, 3.0));
+        {
+          // The points > 3 px off, by the object the nearest true crossing lies on (0: the table).
+          std::map<int, std::vector<const bundle::LinePoint*>> by_row;
+          for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(&t);
+          for (const LinePoint& p : line.points) {
+            auto it = by_row.find(p.row);
+            if (it == by_row.end()) continue;
+            const bundle::LinePoint* nearest = it->second[0];
+            for (const bundle::LinePoint* t : it->second)
+              if (std::abs(t->column - p.column) < std::abs(nearest->column - p.column)) nearest = t;
+            if (std::abs(nearest->column - p.column) > 3.0) ++far_on_boards[bounce][nearest->object != 0 ? 1 : 0];
+          }
+        }
       }
     }
   }
@@ -216,15 +230,20 @@ TEST(RenderedLineTest, WebcamConcaveCornerKeepsThePrimaryLine) {
   const pipeline::LineAccuracy& on = totals[1];
   const double lit = static_cast<double>(on.truth_rows);
   EXPECT_GT(on.truth_rows, 2000u);
-  // What main's extractor does on these frames (2026-11-24, the preset tuned to DESIGN.md's C270
-  // figures): lit rows found 79.7 % (79.1 % without the bounce; issue 15's target is 98 %): the table's
-  // line (albedo 0.08) peaks at ~10 DN, under the extractor's 12 DN threshold, and half its rows are
-  // missed; on the two boards 99.8 % of the true points' rows are found. > 3 px off: 28 rows (25
-  // without), > 1 px off 7.4 % (6.7 %). The bounce must not make it worse than that by more than a few
-  // rows; the target figures are the extractor's work (issue 15).
+  for (int bounce = 0; bounce < 2; ++bounce) {
+    std::printf("bounce %s: > 3 px off on the table %d, on the boards %d\n", bounce != 0 ? "on " : "off",
+                far_on_boards[bounce][0], far_on_boards[bounce][1]);
+  }
+  // With the detection threshold at 6 sigma of the frame's noise (8-10 DN here; extract.cc) the table's
+  // line (albedo 0.08, ~10 DN) is found in 85 % of its rows (before, at the fixed 12 DN: half); on the
+  // two boards every true point's row is found. The bounce must not pull points off the boards' line
+  // (> 3 px off, measured: 7 with and without it); on the table, at the boards' foot, the scattered
+  // light is as strong as the table's own line (5-14 DN against ~10), and a few more rows take it
+  // (measured: 23 without, 40 with, of 2,296 table points), which the bound on the whole holds.
   (void)lit;
   EXPECT_GE(1.0 - static_cast<double>(object_missed) / object_points, 0.99);
-  EXPECT_LE(far[1].outliers, far[0].outliers + 10);      // points taken on the bounce instead of the line
+  EXPECT_LE(far_on_boards[1][1], far_on_boards[0][1] + 5);  // points taken on the bounce instead of the line
+  EXPECT_LE(far[1].outliers, far[0].outliers + 30);
   EXPECT_LE(on.outliers, totals[0].outliers + on.truth_rows / 50);
 }
 
@@ -388,6 +407,73 @@ TEST(SpeckleLimitTest, PerRowScatterAgainstDorsch) {
   EXPECT_LT(cases[0].ideal / cases[3].ideal, 2.5);
   // The f/4 limit per row is above issue 15's 0.25 px target for the webcam's line, whatever the extractor.
   EXPECT_GT(cases[0].ideal, 0.25);
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
+
+namespace rotoscan::laser {
+namespace {
+
+// The detection floor (extract.cc, "Detection threshold"): 6 sigma of the noise estimated per frame on
+// its lit pixels. Two laser-off frames of the same step with different noise seeds (MJPEG, rolling-
+// shutter flicker and the changing ambient included) have no laser: every row with a point is a false
+// detection. Here, 2 steps of each of the three webcam scenes (5,760 rows), with the 6 DN floor: 4 sigma
+// 25 rows, 5 sigma 10, 6 sigma 1 (the default); with a 2 DN floor, 3 steps each (8,640 rows): 4 sigma
+// 151, 5 sigma 18, 6 sigma 1, 8 sigma 0. The estimated sigma is 1.1-1.3 DN on these pairs (checked
+// against the difference's SD over the lit pixels), 1.2-1.8 DN on the laser pairs (DESIGN.md's real
+// C270 frame: 1.4 DN).
+TEST(DetectionFloorTest, FalseDetectionsOnLaserOffPairs) {
+  const char* files[] = {"glossy-webcam.json", "textured-webcam.json", "concave-webcam.json"};
+  int rows = 0, false_rows[3] = {0, 0, 0};  // at 4, 5 and 6 sigma
+  for (const char* file : files) {
+    auto scene = sim::LoadScene(rotoscan::testing::DataPath(std::string("scenes/") + file));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    auto renderer = sim::Renderer::Create(*scene);
+    ASSERT_TRUE(renderer.ok());
+    for (int step = 0; step < 2; ++step) {
+      const double angle = step * 2.0 * 3.14159265358979323846 / 3;
+      const sim::FrameMask off_only = {false, false, true, false};
+      const cv::Mat off = (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), off_only).frames[2];
+      const cv::Mat other = (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 7), off_only).frames[2];
+      // The SD of the red difference over the pixels lit in the laser-off frame (>= 16 DN).
+      cv::Mat a, b;
+      cv::extractChannel(other, a, 2);
+      cv::extractChannel(off, b, 2);
+      double sum = 0, sum2 = 0;
+      int n = 0;
+      for (int r = 0; r < a.rows; ++r) {
+        for (int x = 0; x < a.cols; ++x) {
+          if (b.at<uint8_t>(r, x) < 16) continue;
+          const double d = a.at<uint8_t>(r, x) - b.at<uint8_t>(r, x);
+          sum += d;
+          sum2 += d * d;
+          ++n;
+        }
+      }
+      const double sd = std::sqrt(sum2 / n - (sum / n) * (sum / n));
+      for (int k = 0; k < 3; ++k) {
+        ExtractOptions o;
+        o.min_snr = 4.0 + k;
+        auto extracted = ExtractLine(other, off, o);
+        ASSERT_TRUE(extracted.ok());
+        const Line& line = *extracted;
+        false_rows[k] += static_cast<int>(line.points.size());
+        if (k == 2) {
+          rows += line.stats.rows;
+          std::printf("%s step %d: noise estimated %.2f DN, SD over the lit pixels %.2f DN, threshold %.0f DN\n", file,
+                      step, line.stats.noise_dn, sd, line.stats.threshold_dn);
+          EXPECT_GT(line.stats.noise_dn, 0.7 * sd) << file;
+          EXPECT_LT(line.stats.noise_dn, 1.5 * sd) << file;
+        }
+      }
+    }
+  }
+  std::printf("laser-off pairs, %d rows: rows with a (false) point at 4 / 5 / 6 sigma: %d / %d / %d\n", rows,
+              false_rows[0], false_rows[1], false_rows[2]);
+  EXPECT_EQ(ExtractOptions{}.min_snr, 6.0);
+  EXPECT_LE(false_rows[2], rows / 2000);  // at most 0.05 % of the rows, a quarter of issue 15's 0.2 %
+  EXPECT_GT(false_rows[0], false_rows[2]);  // the floor is where the false detections stop, not far above
 }
 
 }  // namespace

@@ -92,9 +92,11 @@ struct ExtractOptions {
   Estimator estimator = Estimator::kCenterOfMass;  // chosen by measurement, see extract.cc
   Channel channel = Channel::kRed;
   PixelLayout layout = PixelLayout::kAuto;
-  // A peak must exceed max(min_contrast_dn, min_snr * noise) in the difference.
-  double min_contrast_dn = 12.0;
-  double min_snr = 8.0;
+  // A peak must exceed max(min_contrast_dn, min_snr * noise) in the difference, the noise estimated per
+  // frame on its lit pixels (extract.cc, "Detection threshold": 6 sigma is where false detections on
+  // laser-off rows stop; the 6 DN floor is for frames with almost no noise).
+  double min_contrast_dn = 6.0;
+  double min_snr = 6.0;
   // Noise sigma of the difference, DN; <= 0: estimated per frame from a sparse sample of pixels.
   double noise_dn = 0.0;
   // Width limits (full width at half maximum, px): narrower is a glint or a hot pixel, wider a blob of
