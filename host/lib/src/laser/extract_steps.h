@@ -123,8 +123,9 @@ constexpr int kNoiseDumpBin = 512;
 using NoiseHistograms = std::array<std::array<uint32_t, kNoiseDumpBin + 1>, 4>;
 
 // Robust noise sigma of (on - off) on channel `channel` of the frames, from a sparse sample of the
-// pixels whose laser-off value is at least kNoiseMinOffDn (see above).
-double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel);
+// pixels whose laser-off value is at least kNoiseMinOffDn (see above); *on_lit: whether enough were
+// (false: the estimate is from all sampled pixels).
+double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel, bool* on_lit);
 
 // Steps 1-2 on one row: d[i] (i < cols; d padded with kPad zero bytes each side) = the difference of the
 // laser-on row a and the laser-off row b, and the (start, bit mask) pairs of the row's pixel groups that

@@ -78,7 +78,7 @@ uint32_t SampleHistograms(const cv::Mat& on, const cv::Mat& off, int channel, co
 
 // Robust noise sigma of (on - off) from a sparse sample of the pixels lit in the laser-off frame
 // (kNoiseMinOffDn, extract_steps.h): 1.4826 * MAD.
-double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
+double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel, bool* on_lit) {
   const int channels = on.channels();
   // First 16 rows spread over the frame, in each 4 stretches of 64 pixels spread over the row: ~4,000
   // samples at 1288x964, enough for a MAD to a few percent. The frames are not in the cache yet, so the
@@ -126,9 +126,13 @@ double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel) {
       // Exact when the median's bin and the MAD's lie inside the clamped edges (the edge bins hold
       // everything beyond them).
       const int edge = std::min(near + m, near - 1 - m);  // the clamped edges' deviation
-      if (near == 256 || (m > -near && m < near - 1 && std::lround(mad) + 1 < edge)) return 1.4826 * mad;
+      if (near == 256 || (m > -near && m < near - 1 && std::lround(mad) + 1 < edge)) {
+        *on_lit = min_off > 0;
+        return 1.4826 * mad;
+      }
     }
   }
+  *on_lit = false;
   return 0.0;  // no frame holds fewer than 16 pixels here: the extractor's callers check its size
 }
 
