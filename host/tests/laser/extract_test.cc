@@ -182,6 +182,35 @@ TEST(ExtractTest, NoiseEstimateMatchesTheTrueSigma) {
   }
 }
 
+// The noise is measured on the lit pixels (extract.cc, "Detection threshold"): a small lit object (5 %
+// of the frame, sigma 1.5 per frame) on a black background clipped at 0 is measured at its own noise,
+// where a frame-wide estimate gave ~0; a dark frame (4 DN, sigma 0.5) keeps the 12 DN floor.
+TEST(ExtractTest, NoiseIsMeasuredOnLitPixelsAndADarkFrameKeepsTheFixedFloor) {
+  std::mt19937 random(5);
+  std::normal_distribution<double> noise(0.0, 1.5);
+  cv::Mat on(964, 1288, CV_8UC1, cv::Scalar(0)), off(964, 1288, CV_8UC1, cv::Scalar(0));
+  for (cv::Mat* m : {&on, &off}) {
+    for (int r = 300; r < 540; ++r) {
+      for (int c = 600; c < 860; ++c) m->at<uint8_t>(r, c) = cv::saturate_cast<uint8_t>(80 + noise(random));
+    }
+  }
+  auto lit = ExtractLine(on, off);
+  ASSERT_TRUE(lit.ok());
+  EXPECT_TRUE(lit->stats.noise_on_lit);
+  EXPECT_NEAR(lit->stats.noise_dn, std::sqrt(2.0) * 1.5, 0.15 * std::sqrt(2.0) * 1.5);
+  EXPECT_EQ(lit->stats.threshold_dn, std::ceil(6.0 * lit->stats.noise_dn));
+  cv::Mat dark_on(964, 1288, CV_8UC1), dark_off(964, 1288, CV_8UC1);
+  for (cv::Mat* m : {&dark_on, &dark_off}) {
+    for (int r = 0; r < m->rows; ++r) {
+      for (int c = 0; c < m->cols; ++c) m->at<uint8_t>(r, c) = cv::saturate_cast<uint8_t>(4 + noise(random) / 3);
+    }
+  }
+  auto dark = ExtractLine(dark_on, dark_off);
+  ASSERT_TRUE(dark.ok());
+  EXPECT_FALSE(dark->stats.noise_on_lit);
+  EXPECT_EQ(dark->stats.threshold_dn, 12.0);
+}
+
 TEST(ExtractTest, SecondPeakFlagsRowAndKeepsTheContinuousLine) {
   cv::Mat on, off;
   LineSpec s = NarrowGaussian();

@@ -59,11 +59,46 @@ namespace {
 // issue's figures are printed (the full sets are `rotoscan bench accuracy --webcam`, README).
 struct PointError {
   float quality;
-  double error;
+  double error;    // along the row, signed
+  double across;   // to the true line (pipeline::DistanceAcrossLine)
+  float peak, uncertainty;
+  uint8_t flags;
+  int object;      // of the nearest true crossing (0: the table)
 };
 
+// Rows > 1 px off by cause, each row counted once, first cause first: a glint (flagged), the albedo
+// divided out (flagged), a steep line (within 1 px across the line: the row's error is the slope's),
+// a weak line (peak under 30 DN: ~3x the detection threshold), and the rest (speckle on a strong line:
+// the SpeckleLimitTest figures); the table's line apart.
+void PrintCauses(const char* file, const std::vector<PointError>& points, size_t lit) {
+  int glint = 0, albedo = 0, steep = 0, weak = 0, rest = 0, table = 0, total = 0, rest_across = 0;
+  int beyond_uncertainty = 0;
+  for (const PointError& p : points) {
+    if (std::abs(p.error) <= 1.0) continue;
+    ++total;
+    beyond_uncertainty += std::abs(p.error) > p.uncertainty;
+    table += p.object == 0;
+    if (p.flags & kFlagGlint) {
+      ++glint;
+    } else if (p.flags & kFlagAlbedoEdge) {
+      ++albedo;
+    } else if (p.across <= 1.0) {
+      ++steep;
+    } else if (p.peak < 30) {
+      ++weak;
+    } else {
+      ++rest;
+      rest_across += p.across > 1.0;
+    }
+  }
+  std::printf("  %s: rows > 1 px off %d of %zu lit (%.2f %%): glint %d, albedo edge %d, steep (<= 1 px across) %d, "
+              "weak (peak < 30 DN) %d, the rest (strong, unflagged, > 1 px across) %d; on the table %d; beyond "
+              "their own uncertainty %d\n",
+              file, total, lit, 100.0 * total / lit, glint, albedo, steep, weak, rest, table, beyond_uncertainty);
+}
+
 std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracy* total,
-                                          int* glints, int* albedo_edges) {
+                                          int* glints, int* albedo_edges, int* missed_rows) {
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
   EXPECT_TRUE(scene.ok()) << scene.status().ToString();
   auto renderer = sim::Renderer::Create(*scene);
@@ -80,15 +115,28 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
       EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
       total->Add(pipeline::CompareWithTruth(line, truth, 1.0));
       std::map<int, std::vector<double>> by_row;
-      for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(t.column);
+      std::map<int, std::vector<const bundle::LinePoint*>> truth_by_row;
+      for (const bundle::LinePoint& t : truth) {
+        by_row[t.row].push_back(t.column);
+        truth_by_row[t.row].push_back(&t);
+      }
+      {
+        std::map<int, int> seen;
+        for (const LinePoint& p : line.points) seen[p.row] = 1;
+        std::map<int, int> row_object;  // a true row's object: the table only where nothing else crosses it
+        for (const bundle::LinePoint& t : truth) row_object[t.row] = std::max(row_object[t.row], t.object);
+        for (const auto& [row, object] : row_object) missed_rows[object != 0 ? 1 : 0] += seen.count(row) == 0;
+      }
       for (const LinePoint& p : line.points) {
         *glints += (p.flags & kFlagGlint) != 0;
         *albedo_edges += (p.flags & kFlagAlbedoEdge) != 0;
-        auto it = by_row.find(p.row);
-        if (it == by_row.end()) continue;
-        double best = 1e300;
-        for (double c : it->second) best = std::abs(p.column - c) < std::abs(best) ? p.column - c : best;
-        out.push_back({p.quality, best});
+        auto it = truth_by_row.find(p.row);
+        if (it == truth_by_row.end()) continue;
+        const bundle::LinePoint* nearest = it->second[0];
+        for (const bundle::LinePoint* t : it->second)
+          if (std::abs(p.column - t->column) < std::abs(p.column - nearest->column)) nearest = t;
+        out.push_back({p.quality, p.column - nearest->column, pipeline::DistanceAcrossLine(p.column, p.row, by_row),
+                       p.peak, p.uncertainty_px, p.flags, nearest->object});
       }
     }
   }
@@ -99,14 +147,17 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
   std::vector<const char*> files = {"glossy-webcam.json", "textured-webcam.json"};
   for (const char* file : files) {
     pipeline::LineAccuracy total;
-    int glints = 0, albedo_edges = 0;
-    std::vector<PointError> points = WebcamPointErrors(file, 3, &total, &glints, &albedo_edges);
+    int glints = 0, albedo_edges = 0, missed_rows[2] = {0, 0};  // [on an object]
+    std::vector<PointError> points = WebcamPointErrors(file, 3, &total, &glints, &albedo_edges, missed_rows);
     ASSERT_GT(points.size(), 1000u) << file;
     const double lit = static_cast<double>(total.truth_rows);
     std::printf("%s: lit rows %zu, found %.2f %%, > 1 px off %.3f %%, rms (within 1 px) %.3f px; across the "
                 "line: > 1 px off %.3f %%, rms %.3f px; flagged: glint %d, albedo edge %d\n",
                 file, total.truth_rows, 100.0 * (lit - total.missed) / lit, 100.0 * total.outliers / lit,
                 total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px(), glints, albedo_edges);
+    PrintCauses(file, points, total.truth_rows);
+    std::printf("  lit rows not found: %d on the table's line alone, %d with an object's line\n", missed_rows[0],
+                missed_rows[1]);
     std::sort(points.begin(), points.end(), [](const PointError& a, const PointError& b) { return a.quality < b.quality; });
     const size_t tenth = points.size() / 10;
     double rms[10], clipped[10];
@@ -134,9 +185,10 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
       // The worst-quality tenth has the largest errors.
       for (int d = 1; d < 10; ++d) EXPECT_GT(rms[0], rms[d]) << file << ": tenth " << d;
     } else {
-      // Textured: the worst tenth's errors are well above the better half's (measured: clipped rms 1.01
-      // against at most 0.57 px, over 1 px 99 against at most 22 of 306), but not above every other
-      // tenth's: the third-worst (mostly points whose albedo was divided out) ties with it, and a few
+      // Textured: the worst tenth's errors are well above the better half's (measured on the tuned
+      // preset with the noise-following threshold: clipped rms 1.03 against at most 0.55 px, over 1 px 101
+      // against at most 17 of 280), but not above every other tenth's: the second-worst (rms 4.25
+      // against 4.34, clipped 0.97 against 1.03) nearly ties with it, and a few
       // gross errors at the cylinder's rim (a nearly horizontal line there, measured per row) sit in the
       // middle tenths (issue 15, open).
       for (int d = 5; d < 10; ++d) {
@@ -145,6 +197,106 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
       }
     }
   }
+}
+
+
+// Issue 15: laser light scattered into a concavity (renderer.h, "Interreflection") makes a second, weaker
+// line along the inside corner of concave-webcam.json (two boards in a 90 degree V). The extractor must
+// keep the primary line: lit rows found and rows > 1 px off against the renderer's truth, with the bounce
+// on and off on the same frames' seeds, and no row's point on the bounce (> 3 px from the true line).
+TEST(RenderedLineTest, WebcamConcaveCornerKeepsThePrimaryLine) {
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/concave-webcam.json"));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  ASSERT_TRUE(scene->laser_interreflection);  // the webcam preset's default
+  sim::Scene without = *scene;
+  without.laser_interreflection = false;
+  LineExtractor extractor;
+  pipeline::LineAccuracy totals[2], far[2];
+  int far_on_boards[2][2] = {{0, 0}, {0, 0}};  // [bounce][on the boards]: points > 3 px off
+  std::map<int, int> missed_by_object, lit_by_object;
+  std::map<int, std::vector<int>> peaks_by_object;  // the red difference at the true centre, bounce on
+  for (int bounce = 0; bounce < 2; ++bounce) {
+    auto renderer = sim::Renderer::Create(bounce != 0 ? *scene : without);
+    ASSERT_TRUE(renderer.ok());
+    for (int step = 0; step < 3; ++step) {
+      const double angle = (step - 1) * 20.0 * 3.14159265358979323846 / 180.0;  // -20, 0, 20 degrees
+      const sim::RenderedStep frames =
+          (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), {true, true, true, false});
+      for (int k = 0; k < 2; ++k) {
+        const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
+        Line line;
+        ASSERT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
+        totals[bounce].Add(pipeline::CompareWithTruth(line, truth, 1.0));
+        {
+          std::map<int, int> rows_seen;
+          for (const LinePoint& p : line.points) rows_seen[p.row] = 1;
+          for (const bundle::LinePoint& t : truth) {
+            missed_by_object[t.object] += rows_seen.count(t.row) == 0;
+            lit_by_object[t.object] += 1;
+            const int x = static_cast<int>(std::lround(t.column));
+            if (bounce != 0 && x >= 0 && x < frames.frames[k].cols) {
+              peaks_by_object[t.object].push_back(frames.frames[k].at<cv::Vec3b>(t.row, x)[2] -
+                                                  frames.frames[2].at<cv::Vec3b>(t.row, x)[2]);
+            }
+          }
+        }
+        far[bounce].Add(pipeline::CompareWithTruth(line, truth, 3.0));
+        {
+          // The points > 3 px off, by the object the nearest true crossing lies on (0: the table).
+          std::map<int, std::vector<const bundle::LinePoint*>> by_row;
+          for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(&t);
+          for (const LinePoint& p : line.points) {
+            auto it = by_row.find(p.row);
+            if (it == by_row.end()) continue;
+            const bundle::LinePoint* nearest = it->second[0];
+            for (const bundle::LinePoint* t : it->second)
+              if (std::abs(t->column - p.column) < std::abs(nearest->column - p.column)) nearest = t;
+            if (std::abs(nearest->column - p.column) > 3.0) ++far_on_boards[bounce][nearest->object != 0 ? 1 : 0];
+          }
+        }
+      }
+    }
+  }
+  for (int bounce = 0; bounce < 2; ++bounce) {
+    const pipeline::LineAccuracy& t = totals[bounce];
+    const double lit = static_cast<double>(t.truth_rows);
+    std::printf("concave-webcam, bounce %s: lit rows %zu, found %.2f %%, > 1 px off %.3f %% (across the line "
+                "%.3f %%), > 3 px off %zu, spurious %zu, rms (within 1 px) %.3f px, mean %+.3f px\n",
+                bounce != 0 ? "on " : "off", t.truth_rows, 100.0 * (lit - t.missed) / lit,
+                100.0 * t.outliers / lit, 100.0 * t.across_outliers / lit, far[bounce].outliers, t.spurious,
+                t.rms_px(), t.mean_px());
+  }
+  for (auto& [object, n] : lit_by_object) {
+    std::vector<int>& peaks = peaks_by_object[object];
+    std::sort(peaks.begin(), peaks.end());
+    std::printf("%s %d: truth points %d (both renders), their row not found %d; red difference at the true "
+                "centre: median %d DN\n", object == 0 ? "table " : "object", object, n, missed_by_object[object],
+                peaks.empty() ? 0 : peaks[peaks.size() / 2]);
+  }
+  int object_points = 0, object_missed = 0;
+  for (const auto& [object, n] : lit_by_object) {
+    if (object == 0) continue;
+    object_points += n;
+    object_missed += missed_by_object[object];
+  }
+  const pipeline::LineAccuracy& on = totals[1];
+  const double lit = static_cast<double>(on.truth_rows);
+  EXPECT_GT(on.truth_rows, 2000u);
+  for (int bounce = 0; bounce < 2; ++bounce) {
+    std::printf("bounce %s: > 3 px off on the table %d, on the boards %d\n", bounce != 0 ? "on " : "off",
+                far_on_boards[bounce][0], far_on_boards[bounce][1]);
+  }
+  // With the detection threshold at 6 sigma of the frame's noise (8-10 DN here; extract.cc) the table's
+  // line (albedo 0.08, ~10 DN) is found in 85 % of its rows (before, at the fixed 12 DN: half); on the
+  // two boards every true point's row is found. The bounce must not pull points off the boards' line
+  // (> 3 px off, measured: 7 with and without it); on the table, at the boards' foot, the scattered
+  // light is as strong as the table's own line (5-14 DN against ~10), and a few more rows take it
+  // (measured: 23 without, 40 with, of 2,296 table points), which the bound on the whole holds.
+  (void)lit;
+  EXPECT_GE(1.0 - static_cast<double>(object_missed) / object_points, 0.99);
+  EXPECT_LE(far_on_boards[1][1], far_on_boards[0][1] + 5);  // points taken on the bounce instead of the line
+  EXPECT_LE(far[1].outliers, far[0].outliers + 30);
+  EXPECT_LE(on.outliers, totals[0].outliers + on.truth_rows / 50);
 }
 
 }  // namespace
@@ -307,6 +459,74 @@ TEST(SpeckleLimitTest, PerRowScatterAgainstDorsch) {
   EXPECT_LT(cases[0].ideal / cases[3].ideal, 2.5);
   // The f/4 limit per row is above issue 15's 0.25 px target for the webcam's line, whatever the extractor.
   EXPECT_GT(cases[0].ideal, 0.25);
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
+
+namespace rotoscan::laser {
+namespace {
+
+// The detection floor (extract.cc, "Detection threshold"): 6 sigma of the noise estimated per frame on
+// its lit pixels. Two laser-off frames of the same step with different noise seeds (MJPEG, rolling-
+// shutter flicker and the changing ambient included) have no laser: every row with a point is a false
+// detection. Here, 2 steps of each of the three webcam scenes (5,760 rows), with the 6 DN floor: 4 sigma
+// 25 rows, 5 sigma 10, 6 sigma 1 (the default); with a 2 DN floor, 3 steps each (8,640 rows): 4 sigma
+// 151, 5 sigma 18, 6 sigma 1, 8 sigma 0. The estimated sigma is 1.1-1.3 DN on these pairs (checked
+// against the difference's SD over the lit pixels), 1.2-1.8 DN on the laser pairs (DESIGN.md's real
+// C270 frame: 1.4 DN).
+TEST(DetectionFloorTest, FalseDetectionsOnLaserOffPairs) {
+  const char* files[] = {"glossy-webcam.json", "textured-webcam.json", "concave-webcam.json"};
+  int rows = 0, false_rows[3] = {0, 0, 0};  // at 4, 5 and 6 sigma
+  for (const char* file : files) {
+    auto scene = sim::LoadScene(rotoscan::testing::DataPath(std::string("scenes/") + file));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    auto renderer = sim::Renderer::Create(*scene);
+    ASSERT_TRUE(renderer.ok());
+    for (int step = 0; step < 2; ++step) {
+      const double angle = step * 2.0 * 3.14159265358979323846 / 3;
+      const sim::FrameMask off_only = {false, false, true, false};
+      const cv::Mat off = (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), off_only).frames[2];
+      const cv::Mat other = (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 7), off_only).frames[2];
+      // The SD of the red difference over the pixels lit in the laser-off frame (>= 16 DN).
+      cv::Mat a, b;
+      cv::extractChannel(other, a, 2);
+      cv::extractChannel(off, b, 2);
+      double sum = 0, sum2 = 0;
+      int n = 0;
+      for (int r = 0; r < a.rows; ++r) {
+        for (int x = 0; x < a.cols; ++x) {
+          if (b.at<uint8_t>(r, x) < 16) continue;
+          const double d = a.at<uint8_t>(r, x) - b.at<uint8_t>(r, x);
+          sum += d;
+          sum2 += d * d;
+          ++n;
+        }
+      }
+      const double sd = std::sqrt(sum2 / n - (sum / n) * (sum / n));
+      for (int k = 0; k < 3; ++k) {
+        ExtractOptions o;
+        o.min_snr = 4.0 + k;
+        auto extracted = ExtractLine(other, off, o);
+        ASSERT_TRUE(extracted.ok());
+        const Line& line = *extracted;
+        false_rows[k] += static_cast<int>(line.points.size());
+        if (k == 2) {
+          rows += line.stats.rows;
+          std::printf("%s step %d: noise estimated %.2f DN, SD over the lit pixels %.2f DN, threshold %.0f DN\n", file,
+                      step, line.stats.noise_dn, sd, line.stats.threshold_dn);
+          EXPECT_TRUE(line.stats.noise_on_lit) << file;
+          EXPECT_GT(line.stats.noise_dn, 0.7 * sd) << file;
+          EXPECT_LT(line.stats.noise_dn, 1.5 * sd) << file;
+        }
+      }
+    }
+  }
+  std::printf("laser-off pairs, %d rows: rows with a (false) point at 4 / 5 / 6 sigma: %d / %d / %d\n", rows,
+              false_rows[0], false_rows[1], false_rows[2]);
+  EXPECT_EQ(ExtractOptions{}.min_snr, 6.0);
+  EXPECT_LE(false_rows[2], rows / 2000);  // at most 0.05 % of the rows, a quarter of issue 15's 0.2 %
+  EXPECT_GT(false_rows[0], false_rows[2]);  // the floor is where the false detections stop, not far above
 }
 
 }  // namespace

@@ -1,7 +1,9 @@
 // The renderer's real-camera effects (renderer.h, issue 15): speckle against the physics of fully
 // developed speckle, glossy glints and highlights, notches over a dark-and-white texture, MJPEG, a
 // flickering ambient read out by a rolling shutter, and the scene fields that turn them on.
+#include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <string>
 #include <vector>
 
@@ -245,9 +247,174 @@ TEST(RealCameraTest, MjpegAndRollingShutterFlicker) {
   EXPECT_GT(cv::norm(f1, f2, cv::NORM_L1) / static_cast<double>(f1.total() * 3), 1.0);
 }
 
+// Laser light scattered into a concavity (renderer.h, "Interreflection"): in concave-webcam.json's 90
+// degree inside corner each laser's line lies on one board, ~9 mm from the corner, and its diffuse bounce
+// lights the other board: a second, weaker line near the corner's edge, apart from the primary one. Noise,
+// speckle, MJPEG and flicker off, so that the bounce is the only difference between the two renders.
+TEST(RealCameraTest, InterreflectionAddsASecondWeakerLineInAConcavity) {
+  auto loaded = LoadScene(rotoscan::testing::DataPath("scenes/concave-webcam.json"));
+  ASSERT_TRUE(loaded.ok()) << loaded.status().ToString();
+  Scene scene = *loaded;
+  ASSERT_TRUE(scene.laser_interreflection);
+  scene.sensor.noise = false;
+  scene.sensor.jpeg_quality = 0;
+  scene.ambient_change = scene.ambient_flicker = 0;
+  for (LaserModel& l : scene.laser) l.f_number = l.speckle_contrast = 0;
+  Scene flat = scene;
+  flat.laser_interreflection = false;
+  auto with = Renderer::Create(scene);
+  auto without = Renderer::Create(flat);
+  ASSERT_TRUE(with.ok() && without.ok());
+  const FrameMask left = {true, false, true, false};
+  const RenderedStep a = (*with)->RenderStep(0.0, 1, left), b = (*without)->RenderStep(0.0, 1, left);
+  cv::Mat on[3], plain[3], off[3];
+  cv::split(a.frames[0], on);
+  cv::split(b.frames[0], plain);
+  cv::split(b.frames[2], off);
+  EXPECT_EQ(cv::norm(a.frames[2], b.frames[2], cv::NORM_INF), 0.0);  // the off frame has no laser
+  int rows = 0, apart = 0, min_bounce = 255, darker = 0;
+  double sum_bounce = 0, sum_ratio = 0;
+  for (int y = 0; y < on[2].rows; ++y) {
+    // The primary line: the row's brightest red difference without the bounce.
+    int line = 0;
+    for (int x = 0; x < on[2].cols; ++x) {
+      if (plain[2].at<uint8_t>(y, x) - off[2].at<uint8_t>(y, x) > plain[2].at<uint8_t>(y, line) - off[2].at<uint8_t>(y, line)) line = x;
+    }
+    const int line_peak = plain[2].at<uint8_t>(y, line) - off[2].at<uint8_t>(y, line);
+    if (line_peak < 60) continue;  // no line in this row
+    // The bounce: what it adds, at its strongest away from the line (> 20 px: past the line's width).
+    int bounce = 0, where = -1;
+    for (int x = 0; x < on[2].cols; ++x) {
+      const int added = on[2].at<uint8_t>(y, x) - plain[2].at<uint8_t>(y, x);
+      darker += added < 0;
+      if (std::abs(x - line) > 20 && added > bounce) bounce = added, where = x;
+    }
+    ++rows;
+    if (where < 0) continue;
+    ++apart;
+    min_bounce = std::min(min_bounce, bounce);
+    sum_bounce += bounce;
+    sum_ratio += static_cast<double>(bounce) / line_peak;
+    if (y == on[2].rows / 2) {
+      std::printf("row %d: line at %d (difference %d DN), bounce strongest at %d (+%d DN); red difference with "
+                  "the bounce every 4 px from the line:", y, line, line_peak, where, bounce);
+      for (int x = std::min(line, where) - 8; x <= std::max(line, where) + 8; x += 4)
+        std::printf(" %d", on[2].at<uint8_t>(y, x) - off[2].at<uint8_t>(y, x));
+      std::printf("\n");
+    }
+  }
+  std::printf("rows with a line: %d, with a bounce > 20 px from it: %d, bounce min %d DN, mean %.1f DN, "
+              "mean bounce / line %.3f; pixels made darker: %d\n",
+              rows, apart, min_bounce, sum_bounce / std::max(1, apart), sum_ratio / std::max(1, apart), darker);
+  EXPECT_GT(rows, 250);
+  EXPECT_EQ(apart, rows);  // a second line in every row of the corner...
+  EXPECT_GE(min_bounce, 3);
+  EXPECT_LT(sum_ratio / apart, 0.5);  // ...weaker than the first
+  // Light is only added, except in a few pixels where the raw red is clipped and the bounce's green
+  // (response 0.12) lowers the red output through the color matrix's negative term, as in a real camera.
+  EXPECT_LT(darker, rows / 4);
+}
+
+// DESIGN.md "What real laser frames look like": a bq Ciclop's C270 (1280x960, MJPEG) on a white plaster
+// bust. The webcam preset on a matte white object (a plaster-white sphere, albedo 0.9) must give the same
+// statistics, each within a stated tolerance of the real figure: in the rows with a line, the red channel
+// of the laser-on frame saturated in about three quarters of them, the peak red difference about 160 DN,
+// the off frame's red under the line about 80, the line 7 to 16 px wide at half maximum (median 12), the
+// green channel dropping by about 50 DN under it, and the difference image's background noise about 1.4 DN.
+struct FrameStatistics {
+  int rows = 0;
+  double saturated = 0, peak = 0, off_red = 0, width = 0, green_drop = 0, noise = 0;
+};
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+FrameStatistics WebcamLineStatistics(const Scene& scene, int steps) {
+  auto renderer = Renderer::Create(scene);
+  EXPECT_TRUE(renderer.ok());
+  FrameStatistics out;
+  std::vector<double> peaks, off_reds, widths, drops, background;
+  int saturated = 0;
+  for (int step = 0; step < steps; ++step) {
+    const double angle = step * 2 * kPi / steps;
+    const RenderedStep frames = (*renderer)->RenderStep(angle, FrameSeed(scene.seed, 0, step, 0), {true, true, true, false});
+    cv::Mat off[3];
+    cv::split(frames.frames[2], off);
+    for (int k = 0; k < 2; ++k) {
+      cv::Mat on[3];
+      cv::split(frames.frames[k], on);
+      for (int y = 0; y < on[2].rows; ++y) {
+        const uint8_t* r_on = on[2].ptr<uint8_t>(y);
+        const uint8_t* r_off = off[2].ptr<uint8_t>(y);
+        int peak = 0, at = 0;
+        for (int x = 0; x < on[2].cols; ++x) {
+          const int d = r_on[x] - r_off[x];
+          if (d > peak) peak = d, at = x;
+        }
+        if (peak < 40) continue;  // no line in this row
+        if (y % 8 == 0) {  // the background: the lit surface more than 40 px from the line
+          for (int x = 0; x < on[2].cols; x += 4) {
+            if (std::abs(x - at) > 40 && r_off[x] > 20) background.push_back(r_on[x] - r_off[x]);
+          }
+        }
+        ++out.rows;
+        peaks.push_back(peak);
+        off_reds.push_back(r_off[at]);
+        drops.push_back(off[1].at<uint8_t>(y, at) - on[1].at<uint8_t>(y, at));
+        int first = at, last = at;
+        while (first > 0 && r_on[first - 1] - r_off[first - 1] >= peak / 2) --first;
+        while (last + 1 < on[2].cols && r_on[last + 1] - r_off[last + 1] >= peak / 2) ++last;
+        widths.push_back(last - first + 1);
+        bool any = false;
+        for (int x = first; x <= last; ++x) any = any || r_on[x] == 255;
+        saturated += any;
+      }
+    }
+  }
+  out.saturated = out.rows > 0 ? static_cast<double>(saturated) / out.rows : 0;
+  out.peak = Median(peaks);
+  out.off_red = Median(off_reds);
+  out.width = Median(widths);
+  out.green_drop = Median(drops);
+  // The difference's noise: the standard deviation of the background, leaving out the few values more
+  // than 12 DN from its median (edges of the object that the on and off frames' ambient light shifts).
+  const double centre = Median(background);
+  double sum = 0, sum2 = 0;
+  int n = 0;
+  for (double b : background) {
+    if (std::abs(b - centre) > 12) continue;
+    sum += b, sum2 += b * b, ++n;
+  }
+  out.noise = n > 1 ? std::sqrt(std::max(0.0, (sum2 - sum * sum / n) / (n - 1))) : 0;
+  return out;
+}
+
+TEST(RealCameraTest, WebcamPresetMatchesRealFrameStatistics) {
+  auto scene = ParseScene(R"({"preset": "webcam", "objects": [{"type": "sphere", "radius_mm": 35, "segments": 96, "color": [0.9, 0.9, 0.9]}]})",
+                          rotoscan::testing::DataPath("."), "plaster");
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  const FrameStatistics s = WebcamLineStatistics(*scene, 2);
+  std::printf("webcam preset on a white sphere (real C270 in brackets): rows with a line %d, saturated %.1f %% (75), "
+              "peak difference %.0f DN (160), off red %.0f DN (80), width at half maximum %.0f px (12), green "
+              "drop %.0f DN (50), background noise %.2f DN (1.4)\n",
+              s.rows, 100 * s.saturated, s.peak, s.off_red, s.width, s.green_drop, s.noise);
+  EXPECT_GT(s.rows, 500);
+  EXPECT_NEAR(s.saturated, 0.75, 0.10);
+  EXPECT_NEAR(s.peak, 160, 25);
+  EXPECT_NEAR(s.off_red, 80, 20);
+  EXPECT_GE(s.width, 7);
+  EXPECT_LE(s.width, 16);
+  EXPECT_NEAR(s.green_drop, 50, 20);
+  EXPECT_NEAR(s.noise, 1.4, 0.5);
+}
+
 TEST(RealCameraTest, BadFieldsAreRefused) {
   for (const char* bad : {R"({"camera": {"jpeg_quality": 101}})", R"({"camera": {"jpeg_quality": 80, "bit_depth": 12}})",
                           R"({"lasers": {"left": {"f_number": 0.2}}})", R"({"light": {"ambient_flicker": 2}})",
+                          R"({"light": {"interreflection": 1}})",
                           R"({"objects": [{"type": "sphere", "specular": -1}]})",
                           R"({"objects": [{"type": "sphere", "checker_mm": "3"}]})"}) {
     auto scene = ParseScene(bad, ".", "bad");

@@ -52,8 +52,15 @@ int FindCandidates(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, int
     c.width_num = (hi - lo + 2) * c.width_den - (nl2 * dr + nr2 * dl);
     c.off_saturated = b[c.peak_pos] >= off_saturation_dn;
     // A run inside, or within kMergeGapPx of, the half-maximum extent of the previous candidate is the
-    // same line (a noise dip, a dark speckle grain): one candidate over both extents.
-    if (count > 0 && candidates[count - 1].last + kMergeGapPx >= lo) {
+    // same line (a noise dip, a dark speckle grain): one candidate over both extents; unless the weaker of
+    // the two peaks under half the stronger one beside it (not inside it): that is no part of the
+    // stronger's half-maximum extent but another light beside the line (laser light scattered into a
+    // concavity, concave-webcam.json: once the threshold followed the noise, its glow joined the line and
+    // the union was too wide, RenderedLineTest.WebcamConcaveCornerKeepsThePrimaryLine), a candidate of
+    // its own.
+    const bool beside = count > 0 && !(candidates[count - 1].last >= lo && hi <= candidates[count - 1].last) &&
+                        2 * std::min(c.peak, candidates[count - 1].peak) < std::max(c.peak, candidates[count - 1].peak);
+    if (count > 0 && !beside && candidates[count - 1].last + kMergeGapPx >= lo) {
       Candidate& prev = candidates[count - 1];
       if (prev.last >= lo && hi <= prev.last) {  // wholly inside: the higher peak's candidate
         if (c.peak > prev.peak) prev = c;

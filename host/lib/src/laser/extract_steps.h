@@ -13,6 +13,7 @@
 // The kernels these use, once per instruction set, are in kernels.h.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -59,6 +60,12 @@ constexpr int kGlintHalfRows = 8;
 constexpr double kGlintShare = 0.75;
 constexpr int kGlintReachRows = 96;
 constexpr double kGlintMaxShare = 0.5;
+// The glint's skirt: saturated points of the same stretch (at most kGlintSkirtPxPerRow px per row from
+// a core point) within kGlintSkirtRows rows of one are flagged too (glossy set, the tuned webcam preset:
+// 27 of the 117 rows in a glint were at the lobe's rising and falling ends, where the share test
+// fails, all saturated, all within 8 rows of a flagged point).
+constexpr int kGlintSkirtRows = 8;
+constexpr float kGlintSkirtPxPerRow = 2.0f;
 // A glint's added uncertainty (px, about two standard errors: glint rows of the glossy set were 0.6-1.0 px
 // off) and quality factor.
 constexpr double kGlintUncertaintyPx = 1.6;
@@ -108,8 +115,22 @@ struct Candidate {
   double Width() const { return static_cast<double>(width_num) / width_den; }
 };
 
-// Robust noise sigma of (on - off) on channel `channel` of the frames, from a sparse sample.
-double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel);
+// The noise estimate (noise.cc) samples only pixels whose laser-off value is at least kNoiseMinOffDn:
+// darker pixels are clipped at the sensor's black level and carry less noise than a lit surface (webcam
+// preset, two laser-off frames of one step: the difference's SD 0.4-0.7 DN where off < 16, 1.1-1.3 DN at
+// 16-96, 0 where off = 0, which is 70-80 % of a webcam frame: the frame-wide MAD was 0.05-0.1 DN), so a
+// frame-wide estimate said nothing of the noise where a line can be. With fewer than kNoiseMinSamples
+// such pixels (a dark frame) every sampled pixel counts.
+constexpr int kNoiseMinOffDn = 16;
+constexpr uint32_t kNoiseMinSamples = 256;
+// Its histograms: 512 bins of the clamped difference and a last one for the pixels not sampled.
+constexpr int kNoiseDumpBin = 512;
+using NoiseHistograms = std::array<std::array<uint32_t, kNoiseDumpBin + 1>, 4>;
+
+// Robust noise sigma of (on - off) on channel `channel` of the frames, from a sparse sample of the
+// pixels whose laser-off value is at least kNoiseMinOffDn (see above); *on_lit: whether enough were
+// (false: the estimate is from all sampled pixels).
+double EstimateNoise(const cv::Mat& on, const cv::Mat& off, int channel, bool* on_lit);
 
 // Steps 1-2 on one row: d[i] (i < cols; d padded with kPad zero bytes each side) = the difference of the
 // laser-on row a and the laser-off row b, and the (start, bit mask) pairs of the row's pixel groups that

@@ -312,16 +312,20 @@ inline int RowGroups(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, i
 
 // The noise estimate's histogram (noise.cc) of one stretch [from, end) of single-channel rows a and b,
 // 16 pixels at a time: bins of a - b clamped to [-near, near - 1] plus near, counted into four
-// interleaved histograms by pixel index & 3. Returns where it stopped (noise.cc's per-pixel loop does
-// the rest, and every other layout).
-inline int NoiseStretch(const uint8_t* a, const uint8_t* b, int from, int end, int near,
-                        std::array<std::array<uint32_t, 512>, 4>* partial) {
+// interleaved histograms by pixel index & 3; a pixel whose b is under min_off goes to bin kNoiseDumpBin
+// instead (not sampled). Returns where it stopped (noise.cc's per-pixel loop does the rest, and every
+// other layout).
+inline int NoiseStretch(const uint8_t* a, const uint8_t* b, int from, int end, int near, int min_off,
+                        NoiseHistograms* partial) {
   int c = from;
   alignas(16) uint16_t at[16];
   const __m128i zero = _mm_setzero_si128(), offset = _mm_set1_epi16(static_cast<int16_t>(near));
   const __m128i lo = _mm_set1_epi16(static_cast<int16_t>(-near)), hi = _mm_set1_epi16(static_cast<int16_t>(near - 1));
+  const __m128i below = _mm_set1_epi16(static_cast<int16_t>(min_off)), dump = _mm_set1_epi16(kNoiseDumpBin);
   auto bin = [&](__m128i x, __m128i y) {
-    return _mm_add_epi16(_mm_min_epi16(_mm_max_epi16(_mm_sub_epi16(x, y), lo), hi), offset);
+    const __m128i value = _mm_add_epi16(_mm_min_epi16(_mm_max_epi16(_mm_sub_epi16(x, y), lo), hi), offset);
+    const __m128i skip = _mm_cmplt_epi16(y, below);
+    return _mm_or_si128(_mm_and_si128(skip, dump), _mm_andnot_si128(skip, value));
   };
   for (; c + 16 <= end; c += 16) {
     const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + c));

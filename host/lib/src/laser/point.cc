@@ -306,12 +306,36 @@ int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_p
     const int lo = std::max(0, row - half), hi = std::min(rows - 1, row + half);
     return v[static_cast<size_t>(hi) + 1] - v[static_cast<size_t>(lo)];
   };
-  int flagged = 0;
+  thread_local std::vector<uint8_t> glint;
+  glint.assign(n, 0);
+  bool any_core = false;
   for (size_t i = 0; i < n; ++i) {
     if (!terms[i].overexposed) continue;
     const int row = points[i].row;
     if (count(over, row, kGlintHalfRows) < kGlintShare * (2 * kGlintHalfRows + 1)) continue;
     if (count(over, row, kGlintReachRows) > kGlintMaxShare * count(all, row, kGlintReachRows)) continue;
+    glint[i] = 1;
+    any_core = true;
+  }
+  if (!any_core) return 0;
+  // The glint's skirt: the saturated points of the same stretch of line within kGlintSkirtRows of a core
+  // point (above), where the lobe rises or falls and the share test has not yet or no longer holds.
+  for (size_t i = 0; i < n; ++i) {
+    if (glint[i] != 1) continue;
+    for (size_t j = i; j-- > 0 && points[i].row - points[j].row <= kGlintSkirtRows;) {
+      if (glint[j] != 0 || !(points[j].flags & kFlagSaturated)) continue;
+      if (std::abs(points[j].column - points[i].column) > kGlintSkirtPxPerRow * (points[i].row - points[j].row)) break;
+      glint[j] = 2;
+    }
+    for (size_t j = i + 1; j < n && points[j].row - points[i].row <= kGlintSkirtRows; ++j) {
+      if (glint[j] != 0 || !(points[j].flags & kFlagSaturated)) continue;
+      if (std::abs(points[j].column - points[i].column) > kGlintSkirtPxPerRow * (points[j].row - points[i].row)) break;
+      glint[j] = 2;
+    }
+  }
+  int flagged = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (glint[i] == 0) continue;
     LinePoint& p = points[i];
     p.flags |= kFlagGlint;
     p.quality *= static_cast<float>(kGlintQuality);

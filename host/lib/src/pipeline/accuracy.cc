@@ -28,11 +28,6 @@ void LineAccuracy::Add(const LineAccuracy& o) {
   across_sum_squared += o.across_sum_squared;
 }
 
-namespace {
-
-// The distance from (column, row) to the true line: the polyline through each true crossing and the
-// nearest crossing of the next row (a pair further apart than kMaxStepPx is not one line), over the rows
-// within kRowsAround; also to the crossings themselves (a line's end).
 double DistanceAcrossLine(double column, int row, const std::map<int, std::vector<double>>& by_row) {
   constexpr int kRowsAround = 4;
   constexpr double kMaxStepPx = 64.0;
@@ -57,8 +52,6 @@ double DistanceAcrossLine(double column, int row, const std::map<int, std::vecto
   }
   return best;
 }
-
-}  // namespace
 
 LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
                               double outlier_px) {

@@ -34,6 +34,8 @@ uint64_t FrameSeed(uint64_t scene_seed, int pose, int step, int frame) {
   return mix(h ^ static_cast<uint64_t>(frame));
 }
 
+constexpr int kScatterSpacing = 8;  // px between the nodes of the interreflection grid
+
 struct Renderer::Impl {
   RTCDevice device = nullptr;
   RTCScene rtc_scene = nullptr;
@@ -65,6 +67,20 @@ struct Renderer::Impl {
   const Eigen::Vector3f& RayAtCentre(int x, int y) const {
     return (*ray_grid)[(y + 1) * grid_width + (x + 1)];
   }
+
+  // One diffuse bounce of a laser's line (renderer.h, "Interreflection"), on the grid of camera pixels
+  // every kScatterSpacing px.
+  struct ScatterGrid {
+    int spacing = 0, cols = 0, rows = 0;
+    std::vector<float> irradiance;  // per node, renderer units (multiplied by the albedo when shaded)
+    std::vector<unsigned> geom;     // the mesh each node's camera ray hits (RTC_INVALID_GEOMETRY_ID: none)
+    // Bilinear at pixel (x, y) over the four surrounding nodes on the same mesh `geom_id` (0 when none
+    // is): the bounce does not leak across an object's silhouette.
+    float At(float x, float y, unsigned geom_id) const;
+  };
+  ScatterGrid Scatter(const Scene& sc, int laser, const Eigen::Isometry3d& table_from_cam,
+                      const Eigen::Vector3d& laser_origin, const Eigen::Vector3d& laser_normal,
+                      double threshold) const;
 
   // True when something lies on the segment from `from` towards `to` (table frame), excluding `gap` mm
   // at each end.
@@ -120,6 +136,129 @@ std::shared_ptr<const std::vector<Eigen::Vector3f>> RayGrid(const geometry::Came
 }
 
 }  // namespace
+
+float Renderer::Impl::ScatterGrid::At(float x, float y, unsigned geom_id) const {
+  const float gx = x / static_cast<float>(spacing), gy = y / static_cast<float>(spacing);
+  const int i0 = std::clamp(static_cast<int>(std::floor(gx)), 0, cols - 2);
+  const int j0 = std::clamp(static_cast<int>(std::floor(gy)), 0, rows - 2);
+  const float fx = std::clamp(gx - static_cast<float>(i0), 0.0f, 1.0f);
+  const float fy = std::clamp(gy - static_cast<float>(j0), 0.0f, 1.0f);
+  float sum = 0.0f, weights = 0.0f;
+  for (int dj = 0; dj < 2; ++dj) {
+    for (int di = 0; di < 2; ++di) {
+      const std::size_t node = static_cast<std::size_t>(j0 + dj) * cols + (i0 + di);
+      if (geom[node] != geom_id) continue;
+      const float w = (di != 0 ? fx : 1.0f - fx) * (dj != 0 ? fy : 1.0f - fy);
+      sum += w * irradiance[node];
+      weights += w;
+    }
+  }
+  return weights > 0.0f ? sum / weights : 0.0f;
+}
+
+Renderer::Impl::ScatterGrid Renderer::Impl::Scatter(const Scene& sc, int k, const Eigen::Isometry3d& table_from_cam,
+                                                    const Eigen::Vector3d& laser_origin,
+                                                    const Eigen::Vector3d& laser_normal, double threshold) const {
+  constexpr double kPi = 3.14159265358979323846;
+  constexpr int kEmitters = 1024;                 // rays of the fan
+  constexpr double kHalfFan = 40.0 * kPi / 180;  // +-40 deg about the ray to the axis 40 mm above the table
+  constexpr double kMinDistanceMm = 2.0;          // nearer pairs skipped: the primary line covers them
+  const LaserModel& laser = sc.laser[k];
+  const geometry::CameraModel& camera = sc.rig.camera;
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  auto intersect = [&](const Eigen::Vector3d& from, const Eigen::Vector3d& dir, RTCRayHit* rh) {
+    rh->ray.org_x = static_cast<float>(from.x());
+    rh->ray.org_y = static_cast<float>(from.y());
+    rh->ray.org_z = static_cast<float>(from.z());
+    rh->ray.dir_x = static_cast<float>(dir.x());
+    rh->ray.dir_y = static_cast<float>(dir.y());
+    rh->ray.dir_z = static_cast<float>(dir.z());
+    rh->ray.tnear = 1.0f;
+    rh->ray.tfar = std::numeric_limits<float>::infinity();
+    rh->ray.mask = 0xFFFFFFFF;
+    rh->ray.time = 0.0f;
+    rh->ray.flags = 0;
+    rh->ray.id = 0;
+    rh->hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(rtc_scene, &context, rh);
+    return rh->hit.geomID != RTC_INVALID_GEOMETRY_ID;
+  };
+  // The emitters: where a fan of rays in the laser plane first meets the scene. Each ray of angular width
+  // d_theta carries the flux power * 300 * sqrt(2 pi) sigma * d_theta (the renderer's fan: radiance
+  // power * G(s) * 300 / range over a cross-section range * d_theta by the Gaussian's thickness), whatever
+  // the surface's slant; the surface reflects its red albedo's share of it, Lambertian.
+  struct Emitter {
+    Eigen::Vector3d p, n;
+    double flux;
+  };
+  std::vector<Emitter> emitters;
+  Eigen::Vector3d ahead = Eigen::Vector3d(0, 0, 40) - laser_origin;
+  ahead -= laser_normal.dot(ahead) * laser_normal;
+  ahead.normalize();
+  const Eigen::Vector3d across = laser_normal.cross(ahead);
+  const double d_theta = 2.0 * kHalfFan / kEmitters;
+  const double ray_flux = laser.power * 300.0 * std::sqrt(2.0 * kPi) * laser.sigma_mm * d_theta;
+  for (int i = 0; i < kEmitters; ++i) {
+    const double theta = -kHalfFan + (i + 0.5) * d_theta;
+    const Eigen::Vector3d dir = std::cos(theta) * ahead + std::sin(theta) * across;
+    RTCRayHit rh;
+    if (!intersect(laser_origin, dir, &rh)) continue;
+    Eigen::Vector3d n(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+    n.normalize();
+    if (n.dot(dir) > 0) n = -n;  // the lit side
+    const Eigen::Vector3d p = laser_origin + static_cast<double>(rh.ray.tfar) * dir;
+    const double albedo = meshes[rh.hit.geomID].Albedo(rh.hit.primID, rh.hit.u, rh.hit.v, p)[0];
+    if (albedo > 0) emitters.push_back({p, n, ray_flux * albedo});
+  }
+  // The receivers: the first camera hit at every node; E = sum flux cos_e cos_r / (pi d^2) over the
+  // emitters that see the node (one occlusion ray per pair, only at nodes whose unoccluded sum, times
+  // their albedo, reaches `threshold`; below it the node gets nothing).
+  ScatterGrid grid;
+  grid.spacing = kScatterSpacing;
+  grid.cols = (camera.width - 1) / kScatterSpacing + 2;
+  grid.rows = (camera.height - 1) / kScatterSpacing + 2;
+  grid.irradiance.assign(static_cast<std::size_t>(grid.cols) * grid.rows, 0.0f);
+  grid.geom.assign(grid.irradiance.size(), RTC_INVALID_GEOMETRY_ID);
+  const Eigen::Vector3d cam_centre = table_from_cam.translation();
+  const Eigen::Matrix3d rotation = table_from_cam.linear();
+  std::vector<std::pair<int, double>> seen;
+  for (int j = 0; j < grid.rows; ++j) {
+    for (int i = 0; i < grid.cols; ++i) {
+      const int x = std::min(i * kScatterSpacing, camera.width - 1), y = std::min(j * kScatterSpacing, camera.height - 1);
+      const Eigen::Vector3d dir = rotation * RayAtCentre(x, y).cast<double>();
+      RTCRayHit rh;
+      if (!intersect(cam_centre, dir, &rh)) continue;
+      const std::size_t node = static_cast<std::size_t>(j) * grid.cols + i;
+      grid.geom[node] = rh.hit.geomID;
+      Eigen::Vector3d n(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+      n.normalize();
+      if (n.dot(dir) > 0) n = -n;  // towards the camera
+      const Eigen::Vector3d q = cam_centre + static_cast<double>(rh.ray.tfar) * dir;
+      seen.clear();
+      double total = 0;
+      for (std::size_t e = 0; e < emitters.size(); ++e) {
+        const Eigen::Vector3d v = emitters[e].p - q;
+        const double d2 = v.squaredNorm();
+        if (d2 < kMinDistanceMm * kMinDistanceMm) continue;
+        const double cos_r = n.dot(v), cos_e = -emitters[e].n.dot(v);  // both times d
+        if (cos_r <= 0 || cos_e <= 0) continue;
+        const double contribution = emitters[e].flux * cos_r * cos_e / (kPi * d2 * d2);
+        seen.emplace_back(static_cast<int>(e), contribution);
+        total += contribution;
+      }
+      const double albedo = meshes[rh.hit.geomID].Albedo(rh.hit.primID, rh.hit.u, rh.hit.v, q)[0];
+      if (total * albedo < threshold) continue;
+      double visible = 0;
+      for (const auto& [e, contribution] : seen) {
+        if (!Occluded(q, emitters[static_cast<std::size_t>(e)].p, 1e-2)) visible += contribution;
+      }
+      grid.irradiance[node] = static_cast<float>(visible);
+    }
+  }
+  return grid;
+}
 
 Renderer::Renderer(const Scene& scene, std::unique_ptr<Impl> impl) : scene_(scene), impl_(std::move(impl)) {}
 Renderer::~Renderer() = default;
@@ -512,6 +651,19 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
         -laser_normal[k].dot(table_from_cam * (-sc.rig.laser_plane[k].offset * sc.rig.laser_plane[k].normal));
   }
 
+  // Interreflection (renderer.h): each laser's bounce on a coarse grid, before the pixels are shaded. A
+  // node is skipped where the bounce would add less than a quarter of a DN.
+  std::unique_ptr<Impl::ScatterGrid> scatter[2];
+  if (sc.laser_interreflection) {
+    for (int k = 0; k < 2; ++k) {
+      if (!want_laser[k]) continue;
+      const double dn_per_unit = sc.sensor.laser_exposure_us * sc.sensor.sensitivity_e_per_us *
+                                 std::max(1e-6, sc.laser[k].response.maxCoeff()) * sc.sensor.DnPerElectron();
+      scatter[k] = std::make_unique<Impl::ScatterGrid>(
+          impl_->Scatter(sc, k, table_from_cam, laser_origin[k], laser_normal[k], 0.25 / dn_per_unit));
+    }
+  }
+
   thread_local Workspace ws;
   // Only the images the masked frames use are accumulated: ambient for the laser and off frames, lamp for
   // the natural frame.
@@ -594,6 +746,10 @@ RenderedStep Renderer::RenderStep(double table_angle, uint64_t seed, const Frame
       }
       for (int k = 0; k < 2; ++k) {
         if (!want_laser[k]) continue;
+        if (scatter[k] != nullptr) {  // the bounce, on the red albedo like the direct line
+          const float bounce = scatter[k]->At(px, py, geom_id);
+          if (bounce > 0.0f) laser_img[k].ptr<float>(y)[x] += weight * albedo[0] * bounce;
+        }
         const LaserModel& laser = sc.laser[k];
         const double s = laser_normal[k].dot(p) + laser_offset[k];
         if (std::abs(s) > 6.0 * laser.sigma_mm) continue;

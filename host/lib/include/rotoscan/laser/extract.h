@@ -80,6 +80,7 @@ struct LineStats {
   int stronger_rejected = 0;  // rows without a point because a much stronger candidate was rejected
                               // (too wide, or hidden by a saturated laser-off frame): see extract.cc
   double noise_dn = 0;      // background noise of the difference used for the threshold, DN (sigma)
+  bool noise_on_lit = false;  // noise_dn was measured on lit pixels (or given): the lower floor applies
   double threshold_dn = 0;  // detection threshold used, DN
 };
 
@@ -92,9 +93,14 @@ struct ExtractOptions {
   Estimator estimator = Estimator::kCenterOfMass;  // chosen by measurement, see extract.cc
   Channel channel = Channel::kRed;
   PixelLayout layout = PixelLayout::kAuto;
-  // A peak must exceed max(min_contrast_dn, min_snr * noise) in the difference.
+  // A peak must exceed max(floor, min_snr * noise) in the difference, the noise estimated per frame on
+  // its lit pixels (extract.cc, "Detection threshold": 6 sigma is where false detections on laser-off
+  // rows stop). The floor is min_contrast_lit_dn when the noise was measured there (or given in
+  // noise_dn), min_contrast_dn when the frame had too few lit pixels and the noise came from dark ones,
+  // which say nothing of the noise where a line can be.
   double min_contrast_dn = 12.0;
-  double min_snr = 8.0;
+  double min_contrast_lit_dn = 6.0;
+  double min_snr = 6.0;
   // Noise sigma of the difference, DN; <= 0: estimated per frame from a sparse sample of pixels.
   double noise_dn = 0.0;
   // Width limits (full width at half maximum, px): narrower is a glint or a hot pixel, wider a blob of

@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstddef>
 #include <filesystem>
+#include <map>
 #include <vector>
 
 #include "rotoscan/bundle/truth.h"
@@ -46,6 +47,11 @@ struct LineAccuracy {
   double mean_px() const { return matched > 0 ? sum_error / matched : 0.0; }
   void Add(const LineAccuracy& other);
 };
+
+// The distance (px) from (column, row) to the true line given as its crossings by row: the polyline
+// through each true crossing and the nearest crossing of the next row (a pair more than 64 px apart is
+// not one line), over the rows within 4; also to the crossings themselves (a line's end).
+double DistanceAcrossLine(double column, int row, const std::map<int, std::vector<double>>& truth_by_row);
 
 LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
                               double outlier_px = 2.0);

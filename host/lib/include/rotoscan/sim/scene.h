@@ -32,7 +32,8 @@
 //                 "response": [r,g,b] (sensor response to 660 nm per channel) },
 //     "light": { "ambient", "diffuse", "direction": [x,y,z] (towards the lamp, camera frame),
 //                "shadows": true (the lamp's light is blocked by the object: cast and self shadows in the
-//                natural image, as a real lamp beside the scanner gives) },
+//                natural image, as a real lamp beside the scanner gives), "interreflection": false (one
+//                diffuse bounce of the laser lines: Scene::laser_interreflection) },
 //     "objects": [ { "type": "mesh", "file": "x.obj|x.ply" (relative to the scene file),
 //                    "texture": "x.png" (OBJ with UVs), "up_axis": "y"|"z", "height_mm": 80 (scale to it),
 //                    "scale": 1 (when no height_mm) },
@@ -171,6 +172,10 @@ struct Scene {
   double ambient_change = 0.0;
   double ambient_flicker = 0.0;
   double flicker_hz = 100.0;
+  // Laser light scattered into concavities (JSON light.interreflection; the webcam preset turns it on):
+  // one diffuse bounce of each laser's lit line onto the visible surface, the second, weaker line of an
+  // inside corner (renderer.h, "Interreflection").
+  bool laser_interreflection = false;
   std::vector<ObjectSpec> objects;
   // The object's placements on the table (JSON "placements"; empty: one, the objects as given).
   struct Placement {
