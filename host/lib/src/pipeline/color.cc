@@ -274,16 +274,19 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     std::vector<Eigen::Vector3d> positions(cloud->size());
     for (size_t i = 0; i < cloud->size(); ++i)
       positions[i] = cloud->points[i].position_in_table.cast<double>();
+    // Open3D 0.16's KDTreeFlann keeps a map over the matrix it is given, not over its own copy
+    // (SetRawData maps `data`, not `data_`): the matrix must outlive the tree. Passing a temporary (a
+    // Map converted to MatrixXd) left the tree reading freed memory, which other threads' allocations
+    // reused: the normals changed from run to run with 2 threads (and, unseen, with 1).
+    const Eigen::MatrixXd matrix = Eigen::Map<const Eigen::MatrixXd>(
+        positions.data()->data(), 3, static_cast<Eigen::Index>(positions.size()));
     open3d::geometry::KDTreeFlann tree;
-    tree.SetMatrixData(Eigen::Map<const Eigen::MatrixXd>(positions.data()->data(), 3,
-                                                         static_cast<Eigen::Index>(positions.size())));
+    tree.SetMatrixData(matrix);
     line_spacing = LineSpacing(*cloud, tree, positions);
     double radius = options.normal_radius_mm;
     if (radius == 0) radius = options.normal_radius_lines * line_spacing;
     if (radius > 0) {
-      // One thread: with two, the normals (and the colors, and ColorTest's figures: 8.9 or 13.8 levels)
-      // changed from run to run, also with a KD tree of its own per thread; the cause is not found yet.
-      normals = PcaNormals(*cloud, radius, 1, tree, positions);
+      normals = PcaNormals(*cloud, radius, threads, tree, positions);
       summary->normal_radius_mm = radius;
     }
   }
