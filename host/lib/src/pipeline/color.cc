@@ -92,8 +92,12 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud,
   float u0 = 0, v0 = 0;
   int sw = 0, sh = 0;
   const float scell = static_cast<float>(shadow_cell_mm);
+  const bool truth_hidden =
+      options.truth_visibility && (options.truth_visibility_bits & kHidden) != 0;
+  const bool truth_shadow =
+      options.truth_visibility && (options.truth_visibility_bits & kLampBlocked) != 0;
   const bool use_map = lamp_in_cam != nullptr && lamp_in_cam->norm() > 0 && options.shadow_map &&
-                       !options.truth_visibility && cloud.size() > 0;
+                       !truth_shadow && cloud.size() > 0;
   if (use_map) {
     toward_lamp = (r.transpose() * *lamp_in_cam).normalized();  // table frame
     su = toward_lamp.unitOrthogonal();
@@ -129,23 +133,24 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud,
     const float cos_camera = normals[i].dot(to_camera);
     if (cos_camera < options.min_cos_camera) continue;
     bool lamp_blocked = false;
-    if (options.truth_visibility) {
-      const int truth = options.truth_visibility(i, angle);
+    const int truth = options.truth_visibility ? options.truth_visibility(i, angle) : 0;
+    if (truth_hidden) {
       if ((truth & kHidden) != 0) continue;
-      lamp_blocked = (truth & kLampBlocked) != 0;
     } else {
       const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
       if (z[i] >
           depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
         continue;  // hidden by a nearer surface
       }
-      if (use_map) {
-        const int sx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
-        const int sy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
-        lamp_blocked =
-            lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
-            toward_lamp.dot(p.position_in_table) + shadow_margin;
-      }
+    }
+    if (truth_shadow) {
+      lamp_blocked = (truth & kLampBlocked) != 0;
+    } else if (use_map) {
+      const int sx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
+      const int sy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
+      lamp_blocked =
+          lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
+          toward_lamp.dot(p.position_in_table) + shadow_margin;
     }
     const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
     if (*std::max_element(rgb.begin(), rgb.end()) >= options.saturation) continue;
@@ -363,7 +368,8 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     return views[o.view].cam_from_table_rotation * normals[o.point];
   };
   const float shadow_ratio = static_cast<float>(options.shadow_ratio);
-  const bool truth_shadows = static_cast<bool>(options.truth_visibility);
+  const bool truth_shadows =
+      options.truth_visibility && (options.truth_visibility_bits & kLampBlocked) != 0;
   const bool map_shadows = map_lamp != nullptr && options.shadow_map && !truth_shadows;
   // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than shadow_ratio x
   // the model against a reference taken high in the views' range (the 75th percentile of I / shading: cast
@@ -524,6 +530,20 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       const double w = obs[k].cos_camera;
       num += w * s * Eigen::Vector3d(obs[k].rgb[0], obs[k].rgb[1], obs[k].rgb[2]);
       den += w * s * s;
+    }
+    if (den <= 0 && options.shadowed_ambient) {
+      // Every view in a cast shadow: the lamp's diffuse light is blocked in all of them, so each shows the
+      // albedo under the ambient light alone (shading 1), which is as well posed as a lit view, only darker.
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+        const double w = obs[k].cos_camera;
+        num += w * Eigen::Vector3d(obs[k].rgb[0], obs[k].rgb[1], obs[k].rgb[2]);
+        den += w;
+      }
+    }
+    if (options.per_point) {
+      int used = 0;
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) used += shadow[k] ? 0 : 1;
+      options.per_point(i, static_cast<int>(offset[i + 1] - offset[i]), used);
     }
     if (den <= 0) continue;
     color[i] = (num / den).cast<float>();
