@@ -105,6 +105,9 @@ TEST(ColorTest, ViewsDivideOutTheLampAndAgreeAcrossLasers) {
   ASSERT_TRUE(before.ok() && after.ok());
   // The hue stays right (the per-point gain error is tiny either way) and the brightness error drops.
   EXPECT_LT(after->color.mean_abs_error_per_point_gain, 2.0);
+  // The estimated lamp refined with each view's shadow map: measured 11.39 levels, 77.8 % within 10 (13.15,
+  // 63.3 % with the ratio test alone: ColorOptions::estimate_shadow_rounds 0).
+  EXPECT_LT(after->color.mean_abs_error_all, 12.5);
   EXPECT_LT(after->color.mean_abs_error_all, 0.85 * before->color.mean_abs_error_all)
       << "views " << after->color.mean_abs_error_all << ", own step " << before->color.mean_abs_error_all;
   // The same surface point has (nearly) the same color whichever laser found it.

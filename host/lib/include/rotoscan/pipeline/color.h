@@ -79,6 +79,9 @@ struct ColorOptions {
   // A point in cast shadow in all its views takes its albedo from those views under the ambient light
   // alone (shading 1); false: from its own step's frame with the lit shading divided out (the old way).
   bool shadowed_ambient = true;
+  // An estimated lamp is refined this many times with each view's shadow map under the lamp found so far
+  // (the cast shadows left out); 0: the ratio test alone.
+  int estimate_shadow_rounds = 2;
   // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
   // called from several threads for every candidate observation (point index, the view's table angle)
   // and returns a TruthVisibility; it replaces the depth-buffer occlusion test and the cast-shadow test
