@@ -69,6 +69,11 @@ Status RunMeshCommand(const MeshOptions& options, const Context& context) {
                     100.0 * (1.0 - summary.observed_vertex_fraction));
       how += closed;
     }
+    if (summary.colored_from_points + summary.colored_from_neighbours > 0) {
+      how += "; vertex colors from the points within " +
+             std::to_string(options.voxel * fusion.color_radius_voxels).substr(0, 4) + " mm (" +
+             std::to_string(summary.colored_from_neighbours) + " vertices with none near: from their neighbours)";
+    }
     seconds = summary.seconds;
   }
   // The pictures are drawn before anything is written: a failure leaves no file.

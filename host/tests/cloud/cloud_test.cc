@@ -1,3 +1,4 @@
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -208,9 +209,12 @@ TEST(MergeTest, DisagreementBetweenAnyTwoSetsOfPoints) {
       CloudPoint p;
       p.position_in_table = Eigen::Vector3f(0.25f * i, 0.25f * j, 0.f);
       p.normal = Eigen::Vector3f::UnitZ();
+      p.color = {100, 110, 120};
       a.push_back(static_cast<uint32_t>(cloud.size()));
       cloud.points.push_back(p);
       p.position_in_table.z() = 0.1f;
+      // The second set darker by 6 levels of luminance where i is even, brighter by 3 where it is odd.
+      p.color = i % 2 == 0 ? std::array<uint8_t, 3>{94, 104, 114} : std::array<uint8_t, 3>{103, 113, 123};
       b.push_back(static_cast<uint32_t>(cloud.size()));
       cloud.points.push_back(p);
     }
@@ -219,6 +223,8 @@ TEST(MergeTest, DisagreementBetweenAnyTwoSetsOfPoints) {
   EXPECT_EQ(d.pairs, a.size());
   EXPECT_NEAR(d.mean_signed_mm, 0.1, 1e-6);
   EXPECT_NEAR(d.median_abs_mm, 0.1, 1e-6);
+  EXPECT_NEAR(d.color_mean_signed, -1.5, 1e-9);
+  EXPECT_NEAR(d.color_mean_abs, 4.5, 1e-9);
 }
 
 }  // namespace

@@ -312,6 +312,83 @@ TEST(FusionTest, BadInput) {
   EXPECT_EQ(FuseSurface(Sphere(500, 3), options).status().code(), StatusCode::kInvalidArgument);
 }
 
+// A thin plate: two sheets 0.6 mm apart (closer than the color radius), the front (+z) red for x < 0 and
+// green for x > 0, the back blue; the front's points are missing over 2 < x < 7 (a hole the mesh closes).
+TEST(VertexColorTest, FromThePointsOnTheVertexsSideAndHolesFromNeighbours) {
+  const Eigen::Vector3d red(0.9, 0.1, 0.1), green(0.1, 0.8, 0.2), blue(0.1, 0.1, 0.9);
+  auto front_color = [&](double x) { return x < 0 ? red : green; };
+  TriangleMesh mesh;
+  const int side = 41;  // vertices every 0.5 mm over 20 x 20 mm
+  for (const double z : {0.3, -0.3}) {
+    for (int j = 0; j < side; ++j) {
+      for (int i = 0; i < side; ++i) mesh.vertices.emplace_back(-10 + 0.5 * i, -10 + 0.5 * j, z);
+    }
+  }
+  for (int sheet = 0; sheet < 2; ++sheet) {
+    const int base = sheet * side * side;
+    for (int j = 0; j + 1 < side; ++j) {
+      for (int i = 0; i + 1 < side; ++i) {
+        const int a = base + j * side + i, b = a + 1, c = a + side, d = c + 1;
+        if (sheet == 0) {  // counter-clockwise seen from +z
+          mesh.triangles.emplace_back(a, b, d);
+          mesh.triangles.emplace_back(a, d, c);
+        } else {  // seen from -z
+          mesh.triangles.emplace_back(a, d, b);
+          mesh.triangles.emplace_back(a, c, d);
+        }
+      }
+    }
+  }
+  mesh.vertex_colors.assign(mesh.vertices.size(), Eigen::Vector3d::Constant(0.5));
+  ColoredPoints cloud;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-10.5, 10.5);
+  for (int k = 0; k < 40000; ++k) {
+    const double x = u(rng), y = u(rng);
+    if (k % 2 == 0) {
+      if (x > 2 && x < 7) continue;
+      cloud.points.emplace_back(x, y, 0.3 + 0.01 * std::sin(7 * x));
+      cloud.normals.emplace_back(0, 0, 1);
+      cloud.colors.push_back(front_color(x));
+    } else {
+      cloud.points.emplace_back(x, y, -0.3);
+      cloud.normals.emplace_back(0, 0, -1);
+      cloud.colors.push_back(blue);
+    }
+  }
+  VertexColorSummary summary;
+  ASSERT_TRUE(ColorVerticesFromPoints(cloud, 1.0, &mesh, &summary).ok());
+  size_t front = 0, back = 0, hole = 0;
+  for (size_t v = 0; v < mesh.vertices.size(); ++v) {
+    const Eigen::Vector3d& p = mesh.vertices[v];
+    const Eigen::Vector3d& c = mesh.vertex_colors[v];
+    if (p.z() < 0) {  // no bleeding from the front sheet 0.6 mm away
+      EXPECT_LT((c - blue).cwiseAbs().maxCoeff(), 1e-9) << p.transpose();
+      ++back;
+    } else if (std::abs(p.x()) > 1.0 && !(p.x() > 1.5 && p.x() < 7.5)) {  // away from the edge and the hole
+      EXPECT_LT((c - front_color(p.x())).cwiseAbs().maxCoeff(), 1e-9) << p.transpose();
+      ++front;
+    } else if (p.x() > 3.2 && p.x() < 5.8) {  // more than 1 mm into the hole: from the green around it
+      EXPECT_LT((c - green).cwiseAbs().maxCoeff(), 1e-9) << p.transpose();
+      ++hole;
+    }
+  }
+  EXPECT_EQ(back, size_t{side * side});
+  EXPECT_GT(front, 1000u);
+  EXPECT_EQ(hole, size_t{5 * side});
+  EXPECT_GE(summary.from_neighbours, hole);
+  EXPECT_GE(summary.rings, 2);
+  EXPECT_EQ(summary.from_points + summary.from_neighbours, mesh.vertices.size());
+
+  ColoredPoints mismatched = cloud;
+  mismatched.colors.resize(10);
+  EXPECT_EQ(ColorVerticesFromPoints(mismatched, 1.0, &mesh).code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(ColorVerticesFromPoints(cloud, 0.0, &mesh).code(), StatusCode::kInvalidArgument);
+  TriangleMesh broken = mesh;
+  broken.triangles.emplace_back(0, 1, static_cast<int>(broken.vertices.size()));
+  EXPECT_EQ(ColorVerticesFromPoints(cloud, 1.0, &broken).code(), StatusCode::kInvalidArgument);
+}
+
 TEST(PoissonTest, SphereIsRecoveredWithColors) {
   PoissonOptions options;
   options.depth = 6;

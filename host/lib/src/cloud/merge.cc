@@ -47,6 +47,7 @@ LaserDisagreement MeasureDisagreement(const PointCloud& cloud, const std::vector
   std::vector<double> signed_distances;
   double unsigned_sum = 0;
   size_t unsigned_count = 0;
+  double color_sum = 0, color_abs_sum = 0;
   for (uint32_t i : left) {
     const CloudPoint& p = cloud.points[i];
     float best = r2;
@@ -59,6 +60,10 @@ LaserDisagreement MeasureDisagreement(const PointCloud& cloud, const std::vector
       }
     });
     if (nearest < 0) continue;
+    const CloudPoint& q = cloud.points[static_cast<size_t>(nearest)];
+    const double color = ((q.color[0] + q.color[1] + q.color[2]) - (p.color[0] + p.color[1] + p.color[2])) / 3.0;
+    color_sum += color;
+    color_abs_sum += std::abs(color);
     const Eigen::Vector3f delta =
         cloud.points[static_cast<size_t>(nearest)].position_in_table - p.position_in_table;
     if (p.normal.squaredNorm() > 0.5f) {
@@ -70,6 +75,10 @@ LaserDisagreement MeasureDisagreement(const PointCloud& cloud, const std::vector
   }
   result.pairs = signed_distances.size() + unsigned_count;
   if (unsigned_count > 0) result.mean_unsigned_mm = unsigned_sum / unsigned_count;
+  if (result.pairs > 0) {
+    result.color_mean_signed = color_sum / static_cast<double>(result.pairs);
+    result.color_mean_abs = color_abs_sum / static_cast<double>(result.pairs);
+  }
   if (!signed_distances.empty()) {
     double sum = 0, sum2 = 0;
     for (double d : signed_distances) {

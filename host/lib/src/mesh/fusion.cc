@@ -548,6 +548,8 @@ Status FusionOptions::Check() const {
   if (threads < 0 || threads > 256) return InvalidArgumentError("threads must be 0..256");
   if (diffusion_iterations < 0 || diffusion_iterations > 1000)
     return InvalidArgumentError("fusion diffusion_iterations must be 0..1000");
+  if (!(color_radius_voxels >= 0 && color_radius_voxels <= 20))
+    return InvalidArgumentError("fusion color_radius_voxels must be 0..20");
   return Status::Ok();
 }
 
@@ -768,7 +770,14 @@ Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions
     }
     scope.Advance();
     if (kept.triangles.empty()) return NotConvergedError("fusion produced no surface (too few or too sparse points?)");
+    VertexColorSummary colors;
+    if (options.color_radius_voxels > 0 && cloud.colors.size() == n) {
+      ROTOSCAN_RETURN_IF_ERROR(
+          ColorVerticesFromPoints(cloud, options.color_radius_voxels * options.voxel_mm, &kept, &colors));
+    }
     if (summary != nullptr) {
+      summary->colored_from_points = colors.from_points;
+      summary->colored_from_neighbours = colors.from_neighbours;
       summary->input_points = n;
       summary->blocks = blocks.size();
       summary->removed_components = removed_components;

@@ -44,6 +44,55 @@ float Shading(const Eigen::Vector3f& normal_in_cam, const Eigen::Vector3f& lamp)
   return 1.0f + std::max(0.0f, normal_in_cam.dot(lamp));
 }
 
+// The cloud seen from the far lamp (an orthographic view along its direction, table frame, in cells of
+// `cell_mm`, keeping the depth nearest the lamp): a point is in the cloud's cast shadow when something lies
+// more than `margin_mm` nearer the lamp in its cell.
+class ShadowMap {
+ public:
+  ShadowMap(const cloud::PointCloud& cloud, const Eigen::Vector3f& toward_lamp_in_table, float cell_mm)
+      : toward_(toward_lamp_in_table.normalized()), cell_(cell_mm) {
+    su_ = toward_.unitOrthogonal();
+    sv_ = toward_.cross(su_);
+    float u1 = -std::numeric_limits<float>::infinity(), v1 = u1;
+    u0_ = v0_ = std::numeric_limits<float>::infinity();
+    for (const cloud::CloudPoint& p : cloud.points) {
+      const float u = su_.dot(p.position_in_table), v = sv_.dot(p.position_in_table);
+      u0_ = std::min(u0_, u), u1 = std::max(u1, u), v0_ = std::min(v0_, v), v1 = std::max(v1, v);
+    }
+    w_ = std::min(8192, static_cast<int>((u1 - u0_) / cell_) + 1);
+    h_ = std::min(8192, static_cast<int>((v1 - v0_) / cell_) + 1);
+    depth_.assign(static_cast<size_t>(w_) * static_cast<size_t>(h_), -std::numeric_limits<float>::infinity());
+    for (const cloud::CloudPoint& p : cloud.points) {
+      int cx = 0, cy = 0;
+      Cell(p.position_in_table, &cx, &cy);
+      const float d = toward_.dot(p.position_in_table);
+      for (int y = std::max(0, cy - 1); y <= std::min(h_ - 1, cy + 1); ++y) {
+        for (int x = std::max(0, cx - 1); x <= std::min(w_ - 1, cx + 1); ++x) {
+          float& m = depth_[static_cast<size_t>(y) * static_cast<size_t>(w_) + static_cast<size_t>(x)];
+          m = std::max(m, d);
+        }
+      }
+    }
+  }
+  bool Shadowed(const Eigen::Vector3f& p, float margin_mm) const {
+    int cx = 0, cy = 0;
+    Cell(p, &cx, &cy);
+    return depth_[static_cast<size_t>(cy) * static_cast<size_t>(w_) + static_cast<size_t>(cx)] >
+           toward_.dot(p) + margin_mm;
+  }
+
+ private:
+  void Cell(const Eigen::Vector3f& p, int* x, int* y) const {
+    *x = std::clamp(static_cast<int>((su_.dot(p) - u0_) / cell_), 0, w_ - 1);
+    *y = std::clamp(static_cast<int>((sv_.dot(p) - v0_) / cell_), 0, h_ - 1);
+  }
+  Eigen::Vector3f toward_, su_, sv_;
+  float cell_;
+  float u0_ = 0, v0_ = 0;
+  int w_ = 1, h_ = 1;
+  std::vector<float> depth_;
+};
+
 // One view: every point's observation there (facing, inside, unoccluded, unsaturated); with a known lamp
 // (`lamp_in_cam` not null), each flagged when the cloud casts a shadow on it (a shadow map: the cloud seen
 // from the far lamp, an orthographic view along its direction in cells of `shadow_cell_mm`, keeping the
@@ -85,41 +134,14 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud,
   }
   const Eigen::Vector3f camera_in_table = -(r.transpose() * t);
   const float occlusion = static_cast<float>(options.occlusion_mm);
-  // The shadow map (function comment).
-  std::vector<float> lamp_depth;
-  Eigen::Vector3f toward_lamp = Eigen::Vector3f::Zero(), su = Eigen::Vector3f::Zero(),
-                  sv = Eigen::Vector3f::Zero();
-  float u0 = 0, v0 = 0;
-  int sw = 0, sh = 0;
-  const float scell = static_cast<float>(shadow_cell_mm);
+  const bool truth_hidden =
+      options.truth_visibility && (options.truth_visibility_bits & kHidden) != 0;
+  const bool truth_shadow =
+      options.truth_visibility && (options.truth_visibility_bits & kLampBlocked) != 0;
   const bool use_map = lamp_in_cam != nullptr && lamp_in_cam->norm() > 0 && options.shadow_map &&
-                       !options.truth_visibility && cloud.size() > 0;
-  if (use_map) {
-    toward_lamp = (r.transpose() * *lamp_in_cam).normalized();  // table frame
-    su = toward_lamp.unitOrthogonal();
-    sv = toward_lamp.cross(su);
-    float u1 = -std::numeric_limits<float>::infinity(), v1 = u1;
-    u0 = v0 = std::numeric_limits<float>::infinity();
-    for (const cloud::CloudPoint& p : cloud.points) {
-      const float u = su.dot(p.position_in_table), v = sv.dot(p.position_in_table);
-      u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
-    }
-    sw = std::min(8192, static_cast<int>((u1 - u0) / scell) + 1);
-    sh = std::min(8192, static_cast<int>((v1 - v0) / scell) + 1);
-    lamp_depth.assign(static_cast<size_t>(sw) * static_cast<size_t>(sh),
-                      -std::numeric_limits<float>::infinity());
-    for (const cloud::CloudPoint& p : cloud.points) {
-      const int cx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
-      const int cy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
-      const float d = toward_lamp.dot(p.position_in_table);
-      for (int y = std::max(0, cy - 1); y <= std::min(sh - 1, cy + 1); ++y) {
-        for (int x = std::max(0, cx - 1); x <= std::min(sw - 1, cx + 1); ++x) {
-          float& m = lamp_depth[static_cast<size_t>(y) * static_cast<size_t>(sw) + static_cast<size_t>(x)];
-          m = std::max(m, d);
-        }
-      }
-    }
-  }
+                       !truth_shadow && cloud.size() > 0;
+  std::optional<ShadowMap> map;
+  if (use_map) map.emplace(cloud, r.transpose() * *lamp_in_cam, static_cast<float>(shadow_cell_mm));
   const float shadow_margin = static_cast<float>(options.shadow_margin_mm);
   for (size_t i = 0; i < cloud.size(); ++i) {
     if (z[i] < 0) continue;
@@ -129,23 +151,20 @@ void Observe(const geometry::Rig& rig, const cloud::PointCloud& cloud,
     const float cos_camera = normals[i].dot(to_camera);
     if (cos_camera < options.min_cos_camera) continue;
     bool lamp_blocked = false;
-    if (options.truth_visibility) {
-      const int truth = options.truth_visibility(i, angle);
+    const int truth = options.truth_visibility ? options.truth_visibility(i, angle) : 0;
+    if (truth_hidden) {
       if ((truth & kHidden) != 0) continue;
-      lamp_blocked = (truth & kLampBlocked) != 0;
     } else {
       const int cx = static_cast<int>(pixel[i].x()) / cell, cy = static_cast<int>(pixel[i].y()) / cell;
       if (z[i] >
           depth[static_cast<size_t>(cy) * static_cast<size_t>(gw) + static_cast<size_t>(cx)] + occlusion) {
         continue;  // hidden by a nearer surface
       }
-      if (use_map) {
-        const int sx = std::min(sw - 1, static_cast<int>((su.dot(p.position_in_table) - u0) / scell));
-        const int sy = std::min(sh - 1, static_cast<int>((sv.dot(p.position_in_table) - v0) / scell));
-        lamp_blocked =
-            lamp_depth[static_cast<size_t>(sy) * static_cast<size_t>(sw) + static_cast<size_t>(sx)] >
-            toward_lamp.dot(p.position_in_table) + shadow_margin;
-      }
+    }
+    if (truth_shadow) {
+      lamp_blocked = (truth & kLampBlocked) != 0;
+    } else if (map) {
+      lamp_blocked = map->Shadowed(p.position_in_table, shadow_margin);
     }
     const std::array<uint8_t, 3> rgb = SampleRgb(natural, pixel[i].x(), pixel[i].y());
     if (*std::max_element(rgb.begin(), rgb.end()) >= options.saturation) continue;
@@ -242,6 +261,8 @@ Status ColorOptions::Check() const {
     return InvalidArgumentError("color: the lamp vector must be finite (and below 1e3)");
   }
   if (threads < 0 || threads > 256) return InvalidArgumentError("color: threads in [0, 256]");
+  if (estimate_shadow_rounds < 0 || estimate_shadow_rounds > 10)
+    return InvalidArgumentError("color: estimate_shadow_rounds in [0, 10]");
   if (!std::isfinite(normal_radius_mm) || normal_radius_mm > 100)
     return InvalidArgumentError("color: normal_radius_mm must be finite and at most 100");
   if (!(normal_radius_lines > 0 && normal_radius_lines <= 50))
@@ -274,16 +295,19 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     std::vector<Eigen::Vector3d> positions(cloud->size());
     for (size_t i = 0; i < cloud->size(); ++i)
       positions[i] = cloud->points[i].position_in_table.cast<double>();
+    // Open3D 0.16's KDTreeFlann keeps a map over the matrix it is given, not over its own copy
+    // (SetRawData maps `data`, not `data_`): the matrix must outlive the tree. Passing a temporary (a
+    // Map converted to MatrixXd) left the tree reading freed memory, which other threads' allocations
+    // reused: the normals changed from run to run with 2 threads (and, unseen, with 1).
+    const Eigen::MatrixXd matrix = Eigen::Map<const Eigen::MatrixXd>(
+        positions.data()->data(), 3, static_cast<Eigen::Index>(positions.size()));
     open3d::geometry::KDTreeFlann tree;
-    tree.SetMatrixData(Eigen::Map<const Eigen::MatrixXd>(positions.data()->data(), 3,
-                                                         static_cast<Eigen::Index>(positions.size())));
+    tree.SetMatrixData(matrix);
     line_spacing = LineSpacing(*cloud, tree, positions);
     double radius = options.normal_radius_mm;
     if (radius == 0) radius = options.normal_radius_lines * line_spacing;
     if (radius > 0) {
-      // One thread: with two, the normals (and the colors, and ColorTest's figures: 8.9 or 13.8 levels)
-      // changed from run to run, also with a KD tree of its own per thread; the cause is not found yet.
-      normals = PcaNormals(*cloud, radius, 1, tree, positions);
+      normals = PcaNormals(*cloud, radius, threads, tree, positions);
       summary->normal_radius_mm = radius;
     }
   }
@@ -360,8 +384,21 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
     return views[o.view].cam_from_table_rotation * normals[o.point];
   };
   const float shadow_ratio = static_cast<float>(options.shadow_ratio);
-  const bool truth_shadows = static_cast<bool>(options.truth_visibility);
-  const bool map_shadows = map_lamp != nullptr && options.shadow_map && !truth_shadows;
+  const bool truth_shadows =
+      options.truth_visibility && (options.truth_visibility_bits & kLampBlocked) != 0;
+  bool map_shadows = map_lamp != nullptr && options.shadow_map && !truth_shadows;
+  // Every observation's cast-shadow flag under lamp `l` (a shadow map per view), for an estimated lamp.
+  bool estimate_flagged = false;
+  auto FlagCastShadows = [&](const Eigen::Vector3f& l) {
+    std::vector<std::optional<ShadowMap>> maps(views.size());
+    for (size_t v = 0; v < views.size(); ++v) {
+      if (have_view[v]) maps[v].emplace(*cloud, views[v].cam_from_table_rotation.transpose() * l,
+                                        static_cast<float>(shadow_cell));
+    }
+    const float margin = static_cast<float>(options.shadow_margin_mm);
+    for (Observation& o : obs) o.lamp_blocked = maps[o.view]->Shadowed(cloud->points[o.point].position_in_table, margin);
+    map_shadows = true;
+  };
   // Least-squares luminance albedo of point i under lamp L. With `shadow`, views darker than shadow_ratio x
   // the model against a reference taken high in the views' range (the 75th percentile of I / shading: cast
   // shadows only darken, so the bright views are the lit truth even when most views are shadowed) are
@@ -423,11 +460,13 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       // under lamp L (1: explains nothing, 0: everything), cast shadows left out as in `albedo`.
       std::vector<float> ys;
       std::vector<Eigen::Vector3f> ns;
+      std::vector<char> blocked;  // in the cloud's cast shadow under the lamp of the last round
       std::vector<uint32_t> begin{0};
       for (const size_t i : sample) {
         for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
           ys.push_back(Luminance(obs[k].rgb));
           ns.push_back(normal_in_cam(obs[k]));
+          blocked.push_back(0);
         }
         begin.push_back(static_cast<uint32_t>(ys.size()));
       }
@@ -438,20 +477,21 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
           ratio.clear();
           for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
             shading[k] = Shading(ns[k], l);
-            ratio.push_back(ys[k] / shading[k]);
+            if (!blocked[k]) ratio.push_back(ys[k] / shading[k]);
           }
+          if (ratio.empty()) continue;
           const size_t at = (ratio.size() * 3) / 4;
           std::nth_element(ratio.begin(), ratio.begin() + static_cast<std::ptrdiff_t>(at), ratio.end());
           const float floor = shadow_ratio * ratio[at];
           double num = 0, den = 0;
           for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
-            if (ys[k] < floor * shading[k]) continue;
+            if (blocked[k] || ys[k] < floor * shading[k]) continue;
             num += ys[k] * shading[k];
             den += static_cast<double>(shading[k]) * shading[k];
           }
           const double a = den > 0 ? num / den : 0;
           for (uint32_t k = begin[j]; k < begin[j + 1]; ++k) {
-            if (ys[k] < floor * shading[k]) continue;
+            if (blocked[k] || ys[k] < floor * shading[k]) continue;
             const double e = ys[k] - a * shading[k];
             residual += e * e;
             total += static_cast<double>(ys[k]) * ys[k];
@@ -475,25 +515,43 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
           }
         }
       }
-      for (float step = 0.5f; step > 0.01f;) {
-        bool improved = false;
-        for (int axis = 0; axis < 3; ++axis) {
-          for (const float sign : {-1.0f, 1.0f}) {
-            Eigen::Vector3f trial = lamp;
-            trial[axis] += sign * step * std::max(1.0f, lamp.norm());
-            const double c = cost(trial);
-            if (c < best) {
-              best = c;
-              lamp = trial;
-              improved = true;
+      auto refine = [&] {
+        for (float step = 0.5f; step > 0.01f;) {
+          bool improved = false;
+          for (int axis = 0; axis < 3; ++axis) {
+            for (const float sign : {-1.0f, 1.0f}) {
+              Eigen::Vector3f trial = lamp;
+              trial[axis] += sign * step * std::max(1.0f, lamp.norm());
+              const double c = cost(trial);
+              if (c < best) {
+                best = c;
+                lamp = trial;
+                improved = true;
+              }
             }
           }
+          if (!improved) step *= 0.5f;
         }
-        if (!improved) step *= 0.5f;
+      };
+      refine();
+      // Cast shadows darken views without the ratio test seeing them all, and pull the strength down: with
+      // the lamp found, each view's shadow map flags them, and the lamp is refined without them (rounds).
+      for (int round = 0; round < options.estimate_shadow_rounds && options.shadow_map &&
+                          !options.truth_visibility && lamp.norm() > 0;
+           ++round) {
+        FlagCastShadows(lamp);
+        size_t at = 0;
+        for (const size_t i : sample) {
+          for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) blocked[at++] = obs[k].lamp_blocked;
+        }
+        best = cost(lamp);
+        refine();
+        estimate_flagged = true;
       }
       // Well posed when the lamp explains a clear part of what the constant shading did not.
       if (lamp.allFinite() && lamp.norm() < 100.0f && best < 0.9 * flat) {
         summary->shading_removed = true;
+        if (estimate_flagged) FlagCastShadows(lamp);  // the final lamp's shadows, for the albedo below
       } else {
         lamp = Eigen::Vector3f::Zero();
         summary->note =
@@ -521,6 +579,20 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
       const double w = obs[k].cos_camera;
       num += w * s * Eigen::Vector3d(obs[k].rgb[0], obs[k].rgb[1], obs[k].rgb[2]);
       den += w * s * s;
+    }
+    if (den <= 0 && options.shadowed_ambient) {
+      // Every view in a cast shadow: the lamp's diffuse light is blocked in all of them, so each shows the
+      // albedo under the ambient light alone (shading 1), which is as well posed as a lit view, only darker.
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+        const double w = obs[k].cos_camera;
+        num += w * Eigen::Vector3d(obs[k].rgb[0], obs[k].rgb[1], obs[k].rgb[2]);
+        den += w;
+      }
+    }
+    if (options.per_point) {
+      int used = 0;
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) used += shadow[k] ? 0 : 1;
+      options.per_point(i, static_cast<int>(offset[i + 1] - offset[i]), used);
     }
     if (den <= 0) continue;
     color[i] = (num / den).cast<float>();

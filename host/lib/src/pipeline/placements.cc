@@ -495,7 +495,9 @@ std::string FormatPlacementReport(const MergePlacementsResult& result) {
       out << "; disagreement with the others: not measured (no overlapping pair)\n";
     } else {
       out << "; disagreement with the others: " << d.pairs << " pairs, mean offset " << d.mean_signed_mm
-          << " mm, rms " << d.rms_mm << " mm, median |d| " << d.median_abs_mm << " mm\n";
+          << " mm, rms " << d.rms_mm << " mm, median |d| " << d.median_abs_mm << " mm; color (luminance, "
+          << "the others minus this one) mean " << d.color_mean_signed << ", mean |d| " << d.color_mean_abs
+          << " levels\n";
     }
   }
   return out.str();

@@ -34,6 +34,9 @@ struct LaserDisagreement {
   double rms_mm = 0;          // RMS of the signed distances (offset included)
   double median_abs_mm = 0;
   double mean_unsigned_mm = 0;  // point-to-point, for pairs whose left point has no normal
+  // Color of the pairs' points: luminance ((r + g + b) / 3, levels of 255), right minus left.
+  double color_mean_signed = 0;
+  double color_mean_abs = 0;
 };
 
 struct MergeReport {

@@ -51,7 +51,8 @@ struct TriangleMesh {
 // normal to the voxels of a thin disc around it, weighted by its quality, by how squarely its camera saw the
 // surface (the cosine between normal and sensor ray) and by a lateral fall-off; the volume is a sparse set
 // of 8^3-voxel blocks. Marching cubes extracts the zero level set where every corner of a cube holds enough
-// weight (trimming), small components are dropped, and each vertex takes the voxels' blended color.
+// weight (trimming), small components are dropped, and each vertex takes the color of the cloud's points
+// near it (ColorVerticesFromPoints; color_radius_voxels 0: the voxels' blended color).
 // Two threads by default: the volume is cut into two slabs of blocks, each written by one thread.
 struct FusionOptions {
   double voxel_mm = 0.5;             // voxel edge
@@ -66,6 +67,9 @@ struct FusionOptions {
   // over the whole box. Needs each point's camera (views) and the flat bottom.
   bool watertight = false;
   int diffusion_iterations = 12;     // Jacobi sweeps over the unobserved voxels (watertight only)
+  // Vertex colors (ColorVerticesFromPoints): from the cloud's points within this many voxels of each vertex;
+  // 0: the voxels' blended color (every sample's color smeared over its splat, behind the surface too).
+  double color_radius_voxels = 1.0;
   int threads = 2;                   // 0: all cores
   Status Check() const;
 };
@@ -79,6 +83,7 @@ struct FusionSummary {
   // the share of the surface's vertices on observed voxels (the rest fill holes).
   std::size_t carved_point_rays = 0, carved_table_rays = 0, discarded_rays = 0;
   double observed_vertex_fraction = 1.0;
+  std::size_t colored_from_points = 0, colored_from_neighbours = 0;  // ColorVerticesFromPoints
   double splat_seconds = 0.0;
   double extract_seconds = 0.0;  // marching cubes, components, colors
   double seconds = 0.0;
@@ -88,6 +93,20 @@ struct FusionSummary {
 // points, or a cloud too large for the voxel size (more than 2^26 blocks).
 Result<TriangleMesh> FuseSurface(const ColoredPoints& cloud, const FusionOptions& options,
                                  FusionSummary* summary = nullptr, Progress* progress = nullptr);
+
+struct VertexColorSummary {
+  std::size_t from_points = 0;      // vertices colored from the cloud's points near them
+  std::size_t from_neighbours = 0;  // vertices with no point near, colored from their neighbours
+  int rings = 0;                    // rings of neighbours that took
+};
+
+// Each vertex's color from the cloud's colors: the Gaussian-weighted average (sigma = radius / 5) of the
+// points within `radius_mm` whose normals agree with the vertex's (cos >= 0.3, so the far side of a thin
+// part does not bleed through; all points when the cloud has no normals); a vertex with none near (a hole
+// of the scan that meshing closed) takes the mean of its already colored neighbours, ring after ring. A
+// vertex that no ring reaches keeps its color. kInvalidArgument for mismatched arrays or a bad radius.
+Status ColorVerticesFromPoints(const ColoredPoints& cloud, double radius_mm, TriangleMesh* mesh,
+                               VertexColorSummary* summary = nullptr);
 
 struct PoissonOptions {
   int depth = 9;                        // octree depth (9: ~0.3 mm cells on a 150 mm object)

@@ -34,7 +34,10 @@
 // faces its camera); the cloud's own normals are left as they were.
 //
 // Each point's color is then the least-squares albedo over its views, weighted by how squarely it faces
-// the camera, with its cast-shadow views dropped, times one fixed factor, 1 + |L|: the brightness the
+// the camera, with its cast-shadow views dropped (a point in cast shadow in every view, as under a
+// leg that the lamp never reaches, takes the albedo from those views under the ambient light alone:
+// shading 1; before 2026-11-24 it fell back to its own step's frame divided by the lit shading, 88
+// levels off on the nose-down scan's 10 % of such points), times one fixed factor, 1 + |L|: the brightness the
 // albedo has on a surface facing the lamp (clipped at 255). The factor depends on nothing but the lamp, so
 // scans of several placements under the same lamp and exposure get the same colors (pipeline/placements.h).
 #pragma once
@@ -73,10 +76,21 @@ struct ColorOptions {
   double shadow_ratio = 0.6;  // a view darker than this x the model is a cast shadow (0: no such test)
   bool shadow_map = true;     // with a known lamp, also the cloud's own cast shadows (a shadow map per view)
   double shadow_margin_mm = 4.0;  // shadowed when the cloud lies this much nearer the lamp at the same place
+  // A point in cast shadow in all its views takes its albedo from those views under the ambient light
+  // alone (shading 1); false: from its own step's frame with the lit shading divided out (the old way).
+  bool shadowed_ambient = true;
+  // An estimated lamp is refined this many times with each view's shadow map under the lamp found so far
+  // (the cast shadows left out); 0: the ratio test alone.
+  int estimate_shadow_rounds = 2;
   // Diagnostics only (bench/pipeline/color_diagnose: the virtual scanner's true mesh answers): when set,
   // called from several threads for every candidate observation (point index, the view's table angle)
-  // and returns a TruthVisibility; it replaces the depth-buffer occlusion test and the cast-shadow test.
+  // and returns a TruthVisibility; it replaces the depth-buffer occlusion test and the cast-shadow test
+  // (those of its answers named in truth_visibility_bits; the others stay the method's).
   std::function<int(size_t point, double table_angle_rad)> truth_visibility;
+  int truth_visibility_bits = 3;  // kHidden | kLampBlocked
+  // Diagnostics only: when set, called once per point (from one thread) with the views it was seen in
+  // and how many of those were used (not cast shadows).
+  std::function<void(size_t point, int views_seen, int views_used)> per_point;
   int threads = 0;                             // 0: all cores
   Status Check() const;
 };
