@@ -197,6 +197,52 @@ TEST_F(ScanCommandTest, SharedOffFrameScanProcessesWithoutAFlag) {
 }
 
 
+// Calibration captures (`scan --kind checkerboard|table-checkerboard`): each view is checked for the board
+// as it is taken, with the detector `rotoscan calibrate` uses, and a view without it is named at once.
+// A board standing on the table, tilted back, seen over a 120° sweep (views at -60° ... 60°): it is edge-on
+// or partly out of view in the last three views, which are named one by one as they are taken, and the
+// capture goes on (a sweep's ends lose the board). A wrong pattern (14 columns for a board of 15) finds no
+// board in the first three views: the capture stops there, naming each, with a partial bundle.
+TEST_F(ScanCommandTest, CalibrationCaptureNamesEachViewWithoutTheBoardAtOnce) {
+  const std::string scene = (dir_ / "board.json").string();
+  std::ofstream(scene) << R"({"seed": 3, "camera": {"width": 640, "height": 480, "hfov_deg": 20, "supersampling": 2},
+    "objects": [{"type": "checkerboard", "cols": 15, "rows": 12, "square_mm": 4, "color": [1, 1, 1],
+                 "position_mm": [0, 25, 0], "rotation_deg": [-25, 0, -60]}]})";
+  std::string out, err;
+  const std::string bundle = (dir_ / "table-board").string();
+  ASSERT_EQ(RunCli({"scan", "--kind", "table-checkerboard", "--scene", scene, "--target-cols", "15", "--target-rows",
+                    "12", "--target-square", "4", "--steps", "9", "--step-deg", "15", "--out", bundle},
+                   &out, &err),
+            0)
+      << err;
+  EXPECT_NE(out.find("board found in 6 of 9 views"), std::string::npos) << out;
+  for (int view = 0; view < 9; ++view) {
+    const std::string line = "view " + std::to_string(view) + ": no 15x12 board found";
+    EXPECT_EQ(err.find(line) != std::string::npos, view >= 6) << "view " << view << ":\n" << err;
+  }
+  // Named in the order taken, each before the next view (stderr is written as the views come).
+  EXPECT_LT(err.find("view 6:"), err.find("view 7:"));
+  EXPECT_LT(err.find("view 7:"), err.find("view 8:"));
+  const std::string json = ReadFile(fs::path(bundle) / "bundle.json").value();
+  EXPECT_NE(json.find("\"kind\": \"table_checkerboard\""), std::string::npos) << json.substr(0, 600);
+
+  for (const std::string kind : {"checkerboard", "table-checkerboard"}) {
+    SCOPED_TRACE(kind);
+    const std::string wrong = (dir_ / ("wrong-" + kind)).string();
+    EXPECT_EQ(RunCli({"scan", "--kind", kind, "--scene", scene, "--target-cols", "14", "--target-rows", "12",
+                      "--target-square", "4", "--steps", "9", "--step-deg", "15", "--out", wrong},
+                     &out, &err),
+              1);
+    for (int view = 0; view < 3; ++view) {
+      EXPECT_NE(err.find("view " + std::to_string(view) + ": no 14x12 board found"), std::string::npos) << err;
+    }
+    EXPECT_EQ(err.find("view 3:"), std::string::npos) << "the capture went on:\n" << err;
+    EXPECT_NE(err.find("no 14x12 board found in the first 3 views"), std::string::npos) << err;
+    EXPECT_FALSE(fs::exists(wrong));
+    EXPECT_TRUE(fs::exists(wrong + ".partial"));
+  }
+}
+
 // `rotoscan scan --device ciclop:PTY` against the fake horus-fw board on a pseudo-terminal, with the virtual
 // camera filming that board (a camera backend this test registers: the `virtual` camera given the fake's
 // truth), free-running at 30 frames/s with a rolling shutter, --live, ending in a cloud on the true sphere.
