@@ -37,9 +37,11 @@ struct HilRig {
   std::unique_ptr<Camera> camera;
   OpenContext context;
 };
-// Opens the `usb` board (reconnect window `reconnect_ms`) and the `virtual` camera rendering `scene_path`
-// from `truth`. Failures are gtest failures; the rig then lacks what did not open.
-HilRig OpenHilRig(const std::filesystem::path& scene_path, RigTruth* truth, int reconnect_ms = 1000);
+// Opens the board `board_spec` ("usb", or "usb:SERIAL"; reconnect window `reconnect_ms`) and the `virtual`
+// camera rendering `scene_path` from `truth`. Failures are gtest failures; the rig then lacks what did not
+// open.
+HilRig OpenHilRig(const std::filesystem::path& scene_path, RigTruth* truth, int reconnect_ms = 1000,
+                  const std::string& board_spec = "usb");
 
 // Options of a hardware-triggered scan of `steps` steps; every frame is checked against `truth`: exposed
 // inside one laser state, the laser the frame says, the table standing at the frame's angle over the whole

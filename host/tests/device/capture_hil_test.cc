@@ -24,8 +24,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
-#include <map>
 #include <thread>
 
 #ifdef ROTOSCAN_TEST_ARAVIS
@@ -42,11 +40,11 @@
 #endif
 #include "capture/client_board.h"
 #include "capture/sim_rig_truth.h"
+#include "capture_hil_rig.h"
 #include "mock_usb_board.h"
 #include "rotoscan/bundle/bundle.h"
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/capture/scan.h"
-#include "rotoscan/pipeline/process.h"
 #include "rotoscan/sim/scene.h"
 #include "fake_board.h"
 #include "sim_board.h"
@@ -57,18 +55,14 @@ namespace {
 namespace fs = std::filesystem;
 using device::testing::MockUsbBoard;
 using device::testing::SimBoard;
+using testing::HilRig;
 
 constexpr int kSteps = 16;
-constexpr int kStepsPerRev = 3200;  // a 200-step motor at 16 microsteps, direct drive: 200 steps per 22.5°
-constexpr double kRadiusMm = 20.0;
-const Eigen::Vector3d kCentre(12.0, 0.0, 20.0);  // off the axis: a frame at the wrong angle leaves the sphere
-// Points from the true rig on the true sphere: what the virtual-time scans reach (0.05 mm), with room for
-// the frames of a real-time scan.
-constexpr double kRmsToleranceMm = 0.1;
-constexpr double kWorstToleranceMm = 1.0;
 // The firmware core's unique id ("ROTOSCANSIM1", firmware/port/sim) in hex: its USB serial number string.
 const char* const kSimSerial = "524F544F5343414E53494D31";
 
+// The scene, the rig's opening, the scan's options with the check of every frame against the truth, and the
+// check of the bundle and its cloud: capture_hil_rig (shared with capture_hil_emu_test).
 class CaptureHilTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -79,15 +73,14 @@ class CaptureHilTest : public ::testing::Test {
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     scene_path_ = dir_ / "scene.json";
-    std::ofstream(scene_path_) << R"({"camera": {"width": 256, "height": 192, "hfov_deg": 20},
-      "objects": [{"type": "sphere", "radius_mm": 20, "position_mm": [12, 0, 0], "color": [0.8, 0.8, 0.8]}]})";
+    testing::WriteHilScene(scene_path_);
     MockUsbBoard::Options options;
     options.real_time = true;
     options.real_us_per_tick = 100;
     options.serial = kSimSerial;
     usb_ = std::make_unique<MockUsbBoard>(&sim_, options);
     MockUsbBoard* usb = usb_.get();
-    truth_ = std::make_unique<internal::SimRigTruth>(usb->device_zero_host_us(), 2.0 * M_PI / kStepsPerRev,
+    truth_ = std::make_unique<internal::SimRigTruth>(usb->device_zero_host_us(), 2.0 * M_PI / testing::kHilStepsPerRev,
                                                      [usb](const std::function<void()>& f) { usb->WithBoardAtNow(f); });
   }
   void TearDown() override {
@@ -96,86 +89,25 @@ class CaptureHilTest : public ::testing::Test {
     fs::remove_all(dir_);
   }
 
-  struct Rig {
-    std::unique_ptr<Board> board;
-    std::unique_ptr<Camera> camera;
-    OpenContext context;
-  };
-  Rig Open(const std::string& spec = "usb") {
-    Rig rig;
-    rig.context.scene_path = scene_path_.string();
-    rig.context.truth = truth_.get();
-    rig.context.options = {"steps_per_rev=" + std::to_string(kStepsPerRev), "reconnect_ms=1000"};
-    auto board = OpenBoard(spec, &rig.context);
-    EXPECT_TRUE(board.ok()) << board.status().ToString();
-    if (!board.ok()) return rig;
-    rig.board = std::move(board).value();
-    rig.context.board = rig.board.get();
-    rig.context.options.clear();
-    auto camera = OpenCamera("virtual", rig.context);
-    EXPECT_TRUE(camera.ok()) << camera.status().ToString();
-    if (camera.ok()) rig.camera = std::move(camera).value();
-    return rig;
+  HilRig Open(const std::string& spec = "usb") {
+    return testing::OpenHilRig(scene_path_, truth_.get(), kReconnectMs, spec);
   }
-
+  // Every frame against the simulator's pin log (one laser state over its whole exposure, the table standing
+  // at the step's angle), then the test's own on_frame_ (fault injection).
   ScanOptions Options() {
-    ScanOptions o;
-    o.steps = kSteps;
-    o.timing = Timing::kTriggered;
-    o.frame_rate_hz = 30.0;
-    o.header.kind = bundle::BundleKind::kScan;
-    o.header.created_by = "capture_hil_test";
-    auto scene = sim::LoadScene(scene_path_);
-    o.header.camera.name = "virtual";
-    o.header.camera.model = scene.value().rig.camera;
-    o.header.camera.laser_exposure_us = 2000;
-    o.header.camera.natural_exposure_us = 20000;
-    // Every frame against the simulator's pin log: one laser state over its whole exposure, the table
-    // standing at the step's angle.
-    o.on_frame = [this](const CapturedFrame& c) {
-      const int64_t start = c.frame->exposure_start_us;
-      const int64_t end = c.frame->ExposureEndUs();
-      EXPECT_TRUE(truth_->LaserSwitches(start, end).empty())
-          << "step " << c.step << " " << bundle::LaserStateName(c.laser) << " exposed across a laser switch";
-      double left = 0, right = 0;
-      truth_->LaserFractions(start, end, &left, &right);
-      EXPECT_EQ(left, c.laser == bundle::LaserState::kLeft ? 1.0 : 0.0) << "step " << c.step;
-      EXPECT_EQ(right, c.laser == bundle::LaserState::kRight ? 1.0 : 0.0) << "step " << c.step;
-      EXPECT_NEAR(truth_->TableAngleAt(start), c.table_angle_rad, 1e-9) << "step " << c.step;
-      EXPECT_NEAR(truth_->TableAngleAt(end), c.table_angle_rad, 1e-9) << "step " << c.step;
-      ++frames_checked_;
-      if (on_frame_) on_frame_(c);
-      return Status::Ok();
-    };
-    return o;
+    return testing::HilScanOptions(
+        kSteps, scene_path_, truth_.get(), &frames_checked_,
+        [this](const CapturedFrame& c) {
+          if (on_frame_) on_frame_(c);
+        },
+        "capture_hil_test");
   }
-
   // The bundle holds every (step, laser) once; the cloud lies on the true sphere.
   void CheckBundleAndCloud(const fs::path& bundle_dir, int steps = kSteps) {
-    auto bundle = bundle::ReadBundle(bundle_dir);
-    ASSERT_TRUE(bundle.ok()) << bundle.status().ToString();
-    std::map<std::pair<int, int>, int> count;
-    for (const auto& f : bundle.value().frames) ++count[{f.step, static_cast<int>(f.laser)}];
-    EXPECT_EQ(count.size(), static_cast<size_t>(steps * 4));
-    for (const auto& [key, n] : count) EXPECT_EQ(n, 1) << "step " << key.first << " laser " << key.second;
-    auto scene = sim::LoadScene(scene_path_);
-    ASSERT_TRUE(scene.ok());
-    auto processed = pipeline::ProcessBundle(bundle_dir, scene.value().rig, pipeline::ProcessOptions{});
-    ASSERT_TRUE(processed.ok()) << processed.status().ToString();
-    const auto& cloud = processed.value().cloud;
-    ASSERT_GT(cloud.size(), static_cast<size_t>(steps * 25));
-    double sum2 = 0.0, worst = 0.0;
-    for (const auto& point : cloud.points) {
-      const double d = std::abs((point.position_in_table.cast<double>() - kCentre).norm() - kRadiusMm);
-      sum2 += d * d;
-      worst = std::max(worst, d);
-    }
-    const double rms = std::sqrt(sum2 / static_cast<double>(cloud.size()));
-    std::printf("cloud: %zu points, %.4f mm RMS from the true sphere, worst %.3f mm\n", cloud.size(), rms, worst);
-    EXPECT_LT(rms, kRmsToleranceMm);
-    EXPECT_LT(worst, kWorstToleranceMm);
+    testing::CheckHilBundleAndCloud(bundle_dir, scene_path_, steps);
   }
 
+  static constexpr int kReconnectMs = 1000;
   fs::path dir_;
   fs::path scene_path_;
   SimBoard sim_;
@@ -187,7 +119,7 @@ class CaptureHilTest : public ::testing::Test {
 };
 
 TEST_F(CaptureHilTest, TriggeredScanOverTheMockedBusEndsInACloudOnTheSurface) {
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   EXPECT_TRUE(rig.board->capabilities().trigger_output);
   auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
@@ -215,7 +147,7 @@ TEST_F(CaptureHilTest, TriggeredScanOverTheMockedBusEndsInACloudOnTheSurface) {
 // The host stalls for longer than the board's laser timeout (a loaded machine): the board stops the program
 // and turns the lasers off; the scan resumes it and ends complete, no frame tied to the wrong step.
 TEST_F(CaptureHilTest, HostStallTripsLaserSafetyAndTheScanResumes) {
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   bool stalled = false;
   on_frame_ = [&](const CapturedFrame& c) {
@@ -233,7 +165,7 @@ TEST_F(CaptureHilTest, HostStallTripsLaserSafetyAndTheScanResumes) {
 }
 
 TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   bool dropped = false, unplugged = false;
   on_frame_ = [&](const CapturedFrame& c) {
@@ -270,7 +202,7 @@ TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
 TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndResumes) {
   int64_t unplugged_at = 0;
   {
-    Rig rig = Open();
+    HilRig rig = Open();
     ASSERT_NE(rig.camera, nullptr);
     on_frame_ = [&](const CapturedFrame& c) {
       if (c.step == 6 && unplugged_at == 0) {
@@ -279,29 +211,17 @@ TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndRes
       }
     };
     auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
-    ASSERT_FALSE(summary.ok());
-    std::printf("the scan stopped: %s\n", summary.status().ToString().c_str());
-    EXPECT_EQ(summary.status().code(), StatusCode::kDeviceError) << summary.status().ToString();
-    EXPECT_NE(summary.status().message().find("1000 ms"), std::string::npos) << summary.status().ToString();
+    testing::ExpectReconnectWindowError(summary.status(), kReconnectMs);
   }
   on_frame_ = nullptr;
   EXPECT_TRUE(fs::exists(dir_ / "b.partial"));
   EXPECT_FALSE(fs::exists(dir_ / "b"));
   // The host could not reach the board: the board's laser safety turned the lasers off after its timeout
-  // (MotionConfig::laser_timeout_ms, 2 s) of silence. Wait for it in real time, then look at the pins.
-  // The board's time is run up to the host's at each read of the truth (WithBoardAtNow), so one absolute
-  // wait for the host's time is the condition itself, however late the mock's clock thread runs.
-  const int64_t timeout_us = device::MotionConfig{}.laser_timeout_ms * 1000LL;
-  MakeRealClock()->WaitUntilUs(unplugged_at + timeout_us + 300'000);
-  const int64_t now = MonotonicNowUs();
-  EXPECT_FALSE(truth_->LaserAt(0, now));
-  EXPECT_FALSE(truth_->LaserAt(1, now));
-  const auto switches = truth_->LaserSwitches(unplugged_at, now);
-  ASSERT_FALSE(switches.empty());
-  EXPECT_LE(switches.back(), unplugged_at + timeout_us + 200'000) << "lasers went off late";
+  // (MotionConfig::laser_timeout_ms, 2 s) of silence, on the pins.
+  testing::ExpectLaserSafetyAfterUnplug(*truth_, unplugged_at);
 
   usb_->Replug();
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   ScanOptions o = Options();
   o.resume = true;
@@ -324,7 +244,7 @@ TEST_F(CaptureHilTest, TwoBoardsTheReplugedOneIsFoundAgainBySerial) {
   other_options.port = 2;
   other_options.address = 3;  // the address the scanning board's re-plug would take next: it must skip it
   MockUsbBoard other_usb(&other, other_options);
-  Rig rig = Open(std::string("usb:") + kSimSerial);
+  HilRig rig = Open(std::string("usb:") + kSimSerial);
   ASSERT_NE(rig.camera, nullptr);
   EXPECT_EQ(rig.board->info().serial, "524f544f5343414e53494d31");
   const int address_before = usb_->address();
@@ -420,8 +340,9 @@ TEST_F(CaptureHilTest, AravisFakeCameraFreeRunningOverTheMockedBusEndsInACloudOn
     if (id != "Fake") arv_disable_interface(id.c_str());
   }
   arv_enable_interface("Fake");
-  Rig rig;
-  rig.context.options = {"steps_per_rev=" + std::to_string(kStepsPerRev), "reconnect_ms=1000"};
+  HilRig rig;
+  rig.context.options = {"steps_per_rev=" + std::to_string(testing::kHilStepsPerRev),
+                         "reconnect_ms=" + std::to_string(kReconnectMs)};
   auto board = OpenBoard("usb", &rig.context);
   ASSERT_TRUE(board.ok()) << board.status().ToString();
   rig.board = std::move(board).value();
