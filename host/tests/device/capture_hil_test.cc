@@ -294,6 +294,7 @@ struct FakeFeed {
   std::vector<Fill> fills;
   uint64_t count = 0;
   int bad_fills = 0;  // buffers of another format or size than asked for
+  ArvBuffer* ignore = nullptr;  // a buffer the test fills itself (a frame never delivered): not recorded
 
   static void Callback(ArvBuffer* buffer, void* data, guint32 exposure_time_us, guint32, ArvPixelFormat format) {
     auto* feed = static_cast<FakeFeed*>(data);
@@ -320,7 +321,7 @@ struct FakeFeed {
                                                  PixelFormat::kBgr8);
     cv::Mat rgb(camera.height, camera.width, CV_8UC3, bytes);
     cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
-    feed->fills.push_back({end, exposure});
+    if (buffer != feed->ignore) feed->fills.push_back({end, exposure});
   }
   // The fill nearest a frame's end as the backend saw it (within `within_us`).
   std::optional<Fill> Nearest(int64_t end_us, int64_t within_us) {
@@ -333,78 +334,160 @@ struct FakeFeed {
   }
 };
 
-TEST_F(CaptureHilTest, AravisFakeCameraFreeRunningOverTheMockedBusEndsInACloudOnTheSurface) {
-  // Only Aravis's fake interface: discovery elsewhere waits for the network and could find real cameras.
-  for (unsigned i = 0; i < arv_get_n_interfaces(); ++i) {
-    const std::string id = arv_get_interface_id(i);
-    if (id != "Fake") arv_disable_interface(id.c_str());
-  }
-  arv_enable_interface("Fake");
-  HilRig rig;
-  rig.context.options = {"steps_per_rev=" + std::to_string(testing::kHilStepsPerRev),
-                         "reconnect_ms=" + std::to_string(kReconnectMs)};
-  auto board = OpenBoard("usb", &rig.context);
-  ASSERT_TRUE(board.ok()) << board.status().ToString();
-  rig.board = std::move(board).value();
-  rig.context.options.clear();
-  auto opened = OpenCamera("aravis:Fake_1", rig.context);
-  ASSERT_TRUE(opened.ok()) << opened.status().ToString();
-  rig.camera = std::move(opened).value();
-  auto* aravis = dynamic_cast<AravisCamera*>(rig.camera.get());
-  ASSERT_NE(aravis, nullptr);
-
-  auto scene = sim::LoadScene(scene_path_);
-  ASSERT_TRUE(scene.ok());
-  auto renderer = sim::Renderer::Create(scene.value());
-  ASSERT_TRUE(renderer.ok()) << renderer.status().ToString();
-  FakeFeed feed;
-  feed.renderer = renderer.value().get();
-  feed.truth = truth_.get();
-  feed.natural_threshold_us = internal::NaturalThresholdUs(scene.value());
-  CameraSettings settings;
-  settings.width = scene.value().rig.camera.width;
-  settings.height = scene.value().rig.camera.height;
-  settings.format = PixelFormat::kBgr8;
-  auto configured = rig.camera->Configure(settings);
-  ASSERT_TRUE(configured.ok()) << configured.status().ToString();
-  ArvFakeCamera* fake =
-      arv_fake_device_get_fake_camera(ARV_FAKE_DEVICE(arv_camera_get_device(aravis->arv_camera())));
-  arv_fake_camera_set_fill_pattern(fake, &FakeFeed::Callback, &feed);
-
-  constexpr int kAravisSteps = 8;
-  ScanOptions o = Options();
-  o.steps = kAravisSteps;
-  o.timing = Timing::kFreeRunning;
-  // Check each frame written against the fill it came from: its true window inside one laser state.
-  int checked = 0;
-  o.on_frame = [&](const CapturedFrame& c) {
-    const auto fill = feed.Nearest(c.frame->ExposureEndUs(), 15'000);
-    EXPECT_TRUE(fill.has_value()) << "step " << c.step << ": no fill of the fake camera near this frame";
-    if (!fill) return Status::Ok();
-    const int64_t start = fill->end_us - fill->exposure_us;
-    EXPECT_EQ(fill->exposure_us, c.laser == bundle::LaserState::kNatural ? 20000 : 2000) << "step " << c.step;
-    EXPECT_TRUE(truth_->LaserSwitches(start, fill->end_us).empty())
-        << "step " << c.step << " " << bundle::LaserStateName(c.laser) << " exposed across a laser switch";
-    double left = 0, right = 0;
-    truth_->LaserFractions(start, fill->end_us, &left, &right);
-    EXPECT_EQ(left, c.laser == bundle::LaserState::kLeft ? 1.0 : 0.0) << "step " << c.step;
-    EXPECT_EQ(right, c.laser == bundle::LaserState::kRight ? 1.0 : 0.0) << "step " << c.step;
-    EXPECT_NEAR(truth_->TableAngleAt(start), c.table_angle_rad, 1e-9) << "step " << c.step;
-    EXPECT_NEAR(truth_->TableAngleAt(fill->end_us), c.table_angle_rad, 1e-9) << "step " << c.step;
-    ++checked;
-    return Status::Ok();
+// The Aravis scan: the `usb` board and Aravis's fake camera fed by FakeFeed, free-running. `fault` (may be
+// null) runs after each frame written, with the fake camera at hand (fault injection). Every frame written is
+// checked against the fill it came from (its true window inside one laser state, at the step's angle); the
+// bundle holds every (step, laser) once and its cloud lies on the true sphere.
+class CaptureHilAravisTest : public CaptureHilTest {
+ protected:
+  static constexpr int kAravisSteps = 8;
+  struct Outcome {
+    ScanSummary summary;
+    AravisCounters counters;
   };
-  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, nullptr);
-  arv_fake_camera_set_fill_pattern(fake, nullptr, nullptr);
-  ASSERT_TRUE(summary.ok()) << summary.status().ToString();
-  std::printf("aravis fake: %s\n", summary.value().Summary().c_str());
-  EXPECT_EQ(summary.value().timing, Timing::kFreeRunning);
-  EXPECT_EQ(summary.value().frames_used, kAravisSteps * 4);
-  EXPECT_EQ(checked, kAravisSteps * 4);
-  EXPECT_EQ(feed.bad_fills, 0);
-  rig.camera.reset();
-  rig.board.reset();
-  CheckBundleAndCloud(dir_ / "b", kAravisSteps);
+  using Fault = std::function<void(const CapturedFrame&, ArvFakeCamera*)>;
+
+  void Scan(const Fault& fault, Outcome* outcome) {
+    // Only Aravis's fake interface: discovery elsewhere waits for the network and could find real cameras.
+    for (unsigned i = 0; i < arv_get_n_interfaces(); ++i) {
+      const std::string id = arv_get_interface_id(i);
+      if (id != "Fake") arv_disable_interface(id.c_str());
+    }
+    arv_enable_interface("Fake");
+    HilRig rig;
+    rig.context.options = {"steps_per_rev=" + std::to_string(testing::kHilStepsPerRev),
+                           "reconnect_ms=" + std::to_string(kReconnectMs)};
+    auto board = OpenBoard("usb", &rig.context);
+    ASSERT_TRUE(board.ok()) << board.status().ToString();
+    rig.board = std::move(board).value();
+    rig.context.options.clear();
+    auto opened = OpenCamera("aravis:Fake_1", rig.context);
+    ASSERT_TRUE(opened.ok()) << opened.status().ToString();
+    rig.camera = std::move(opened).value();
+    auto* aravis = dynamic_cast<AravisCamera*>(rig.camera.get());
+    ASSERT_NE(aravis, nullptr);
+
+    auto scene = sim::LoadScene(scene_path_);
+    ASSERT_TRUE(scene.ok());
+    auto renderer = sim::Renderer::Create(scene.value());
+    ASSERT_TRUE(renderer.ok()) << renderer.status().ToString();
+    FakeFeed feed;
+    feed.renderer = renderer.value().get();
+    feed.truth = truth_.get();
+    feed.natural_threshold_us = internal::NaturalThresholdUs(scene.value());
+    CameraSettings settings;
+    settings.width = scene.value().rig.camera.width;
+    settings.height = scene.value().rig.camera.height;
+    settings.format = PixelFormat::kBgr8;
+    auto configured = rig.camera->Configure(settings);
+    ASSERT_TRUE(configured.ok()) << configured.status().ToString();
+    ArvFakeCamera* fake =
+        arv_fake_device_get_fake_camera(ARV_FAKE_DEVICE(arv_camera_get_device(aravis->arv_camera())));
+    arv_fake_camera_set_fill_pattern(fake, &FakeFeed::Callback, &feed);
+    fake_feed_ = &feed;
+
+    ScanOptions o = Options();
+    o.steps = kAravisSteps;
+    o.timing = Timing::kFreeRunning;
+    // Check each frame written against the fill it came from: its true window inside one laser state.
+    int checked = 0;
+    o.on_frame = [&](const CapturedFrame& c) {
+      const auto fill = feed.Nearest(c.frame->ExposureEndUs(), 15'000);
+      EXPECT_TRUE(fill.has_value()) << "step " << c.step << ": no fill of the fake camera near this frame";
+      if (fill) {
+        const int64_t start = fill->end_us - fill->exposure_us;
+        EXPECT_EQ(fill->exposure_us, c.laser == bundle::LaserState::kNatural ? 20000 : 2000) << "step " << c.step;
+        EXPECT_TRUE(truth_->LaserSwitches(start, fill->end_us).empty())
+            << "step " << c.step << " " << bundle::LaserStateName(c.laser) << " exposed across a laser switch";
+        double left = 0, right = 0;
+        truth_->LaserFractions(start, fill->end_us, &left, &right);
+        EXPECT_EQ(left, c.laser == bundle::LaserState::kLeft ? 1.0 : 0.0) << "step " << c.step;
+        EXPECT_EQ(right, c.laser == bundle::LaserState::kRight ? 1.0 : 0.0) << "step " << c.step;
+        EXPECT_NEAR(truth_->TableAngleAt(start), c.table_angle_rad, 1e-9) << "step " << c.step;
+        EXPECT_NEAR(truth_->TableAngleAt(fill->end_us), c.table_angle_rad, 1e-9) << "step " << c.step;
+        ++checked;
+      }
+      if (fault) fault(c, fake);
+      return Status::Ok();
+    };
+    auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, nullptr);
+    if (fault_thread_.joinable()) fault_thread_.join();
+    arv_fake_camera_set_fill_pattern(fake, nullptr, nullptr);
+    fake_feed_ = nullptr;
+    ASSERT_TRUE(summary.ok()) << summary.status().ToString();
+    std::printf("aravis fake: %s\n", summary.value().Summary().c_str());
+    EXPECT_EQ(summary.value().timing, Timing::kFreeRunning);
+    EXPECT_EQ(summary.value().frames_used, kAravisSteps * 4);
+    EXPECT_EQ(checked, kAravisSteps * 4);
+    EXPECT_EQ(feed.bad_fills, 0);
+    outcome->summary = summary.value();
+    outcome->counters = aravis->counters();
+    rig.camera.reset();
+    rig.board.reset();
+    CheckBundleAndCloud(dir_ / "b", kAravisSteps);
+  }
+
+  FakeFeed* fake_feed_ = nullptr;
+  std::thread fault_thread_;
+};
+
+TEST_F(CaptureHilAravisTest, FreeRunningOverTheMockedBusEndsInACloudOnTheSurface) {
+  Outcome outcome;
+  Scan(nullptr, &outcome);
+  EXPECT_EQ(outcome.counters.dropped, 0u);
+}
+
+// Faults in the Aravis scan, each ending in a complete bundle with every frame checked against the truth:
+//  * a dropped frame: the fake camera fills one frame that never reaches the host (a frame id gap, as a frame
+//    lost on the link); the state it would have served is taken from a later frame;
+//  * a lost buffer: for 50 ms the fake's Width register says more than the buffers hold, so Aravis completes
+//    buffers with an error status (as with missing packets): the backend drops them;
+//  * a stall: the host takes no frame for 500 ms, the stream's buffers run out (frames lost) and those
+//    waiting are stale: judged by their timestamps, none is used for a state it did not see;
+//  * a lost USB packet to the board (the client re-sends).
+TEST_F(CaptureHilAravisTest, DroppedFrameLostBufferStallAndLostPacketEndComplete) {
+  bool dropped = false, lost = false, stalled = false, packet = false;
+  ArvBuffer* never_delivered = nullptr;
+  Outcome outcome;
+  Scan(
+      [&](const CapturedFrame& c, ArvFakeCamera* fake) {
+        if (c.step == 1 && !packet) {
+          packet = true;
+          usb_->DropNextOut();
+        }
+        if (c.step == 2 && c.laser == bundle::LaserState::kRight && !dropped) {
+          dropped = true;
+          // The camera exposes and sends a frame the host never gets: the next frame's id skips one.
+          never_delivered = arv_buffer_new(arv_fake_camera_get_payload(fake), nullptr);
+          fake_feed_->ignore = never_delivered;
+          arv_fake_camera_fill_buffer(fake, never_delivered, nullptr);
+        }
+        if (c.step == 4 && c.laser == bundle::LaserState::kLeft && !lost) {
+          lost = true;
+          guint32 width = 0;
+          arv_fake_camera_read_register(fake, ARV_FAKE_CAMERA_REGISTER_WIDTH, &width);
+          arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_WIDTH, width + 64);
+          fault_thread_ = std::thread([fake, width] {
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_WIDTH, width);
+          });
+        }
+        if (c.step == 6 && c.laser == bundle::LaserState::kOff && !stalled) {
+          stalled = true;
+          std::this_thread::sleep_for(std::chrono::milliseconds(500));  // < the board's 2 s laser timeout
+        }
+      },
+      &outcome);
+  if (never_delivered != nullptr) g_object_unref(never_delivered);
+  EXPECT_TRUE(dropped && lost && stalled && packet);
+  std::printf("aravis counters: %llu frames, %llu dropped, %llu failed buffers\n",
+              static_cast<unsigned long long>(outcome.counters.frames),
+              static_cast<unsigned long long>(outcome.counters.dropped),
+              static_cast<unsigned long long>(outcome.counters.failed));
+  EXPECT_GE(outcome.summary.frames_dropped, 1) << "the frame id gap was not seen";
+  EXPECT_GE(outcome.counters.failed, 1u) << "no buffer completed with an error status";
+  EXPECT_GE(outcome.counters.dropped, 2u);
+  EXPECT_EQ(usb_->counters().dropped, 1);
 }
 #endif  // ROTOSCAN_TEST_ARAVIS
 
