@@ -1,7 +1,9 @@
 // `rotoscan scan` and `rotoscan devices` as the user runs them, with no hardware: the sim board and the
 // virtual camera, --live processing into a cloud, and bad input answered with a message and an exit code.
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -9,13 +11,17 @@
 #include <limits>
 #include <map>
 #include <sstream>
+#include <thread>
 
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "command.h"
 #include "fake_ciclop.h"
 #include "fake_ciclop_truth.h"
+#include "rotoscan/bundle/bundle.h"
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/cloud/cloud.h"
 #include "rotoscan/core/file.h"
@@ -246,11 +252,11 @@ TEST_F(ScanCommandTest, CalibrationCaptureNamesEachViewWithoutTheBoardAtOnce) {
 }
 
 // A good calibration capture: three placements of a board standing on the table (those of
-// data/scenes/calibration.json, calibration-2 and -3), each swept through 120° in 13 views by `rotoscan scan
+// data/scenes/calibration.json, calibration-2 and -3), each swept through 120° in 17 views (7.5° apart) by `rotoscan scan
 // --kind table-checkerboard` (the sim board, the virtual camera at its full 1288 x 964), accepted by `rotoscan
 // calibrate` (its checks passed, exit 0), the rig within the README's calibration targets of the true one
 // (fx 0.1 %, laser planes 0.05° and 0.05 mm, the table axis 0.05 mm and 0.05°, the table top 0.05 mm).
-// Opt-in (rendering 156 full-size frames takes a minute or more): ROTOSCAN_SCAN_CALIB=1.
+// Opt-in (rendering 204 full-size frames takes a minute or more): ROTOSCAN_SCAN_CALIB=1.
 TEST_F(ScanCommandTest, CalibrationCaptureCalibratesCloseToTheTruth) {
   if (std::getenv("ROTOSCAN_SCAN_CALIB") == nullptr) GTEST_SKIP() << "set ROTOSCAN_SCAN_CALIB=1";
   const char* const placements[] = {R"("position_mm": [20, 20, 0], "rotation_deg": [0, 0, -60])",
@@ -269,7 +275,7 @@ TEST_F(ScanCommandTest, CalibrationCaptureCalibratesCloseToTheTruth) {
     // The board's first inner corner stands (rows + 1) squares above the table top: 52 mm.
     ASSERT_EQ(RunCli({"scan", "--kind", "table-checkerboard", "--scene", scene, "--target-cols", "15",
                       "--target-rows", "12", "--target-square", "4", "--target-origin-height", "52", "--steps",
-                      "13", "--step-deg", "10", "--stop-without-board", "0", "--out", bundle},
+                      "17", "--step-deg", "7.5", "--stop-without-board", "0", "--out", bundle},
                      &out, &err),
               0)
         << err;
@@ -296,6 +302,122 @@ TEST_F(ScanCommandTest, CalibrationCaptureCalibratesCloseToTheTruth) {
   EXPECT_LT(e.axis_offset_mm, 0.05);
   EXPECT_LT(e.axis_angle_deg, 0.05);
   EXPECT_LT(e.table_top_mm, 0.05);
+}
+
+// A file's text, or `fallback` when it cannot be read.
+std::string TextOr(const fs::path& path, const std::string& fallback) {
+  auto text = ReadFile(path);
+  return text.ok() ? text.value() : fallback;
+}
+
+// Ctrl-C: `rotoscan scan` (the program, in a child process: its own interrupt handler) is sent SIGINT once a
+// few steps are written. It exits non-zero saying it was interrupted and how to resume; the board's laser
+// pins are off (the sim board writes their levels when let go: option pins_file); the partial bundle is
+// resumable, and `--resume` completes it: every (step, laser) once, the frames written before the signal
+// kept byte for byte (not taken again), only the missing steps captured.
+TEST_F(ScanCommandTest, CtrlCLeavesLasersOffAndAResumableBundle) {
+  constexpr int kSteps = 48;
+  const fs::path bundle = dir_ / "interrupted";
+  const fs::path partial = dir_ / "interrupted.partial";
+  const fs::path pins = dir_ / "pins.txt";
+  const fs::path err_path = dir_ / "stderr.txt";
+  const std::vector<std::string> args = {ROTOSCAN_CLI_PATH, "--no-progress", "scan", "--device", "sim", "--camera",
+                                         "virtual", "--scene", scene_, "--steps", std::to_string(kSteps), "--out",
+                                         bundle.string(), "--option", "pins_file=" + pins.string()};
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    const int fd = ::open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) {
+      ::dup2(fd, STDERR_FILENO);
+      ::dup2(fd, STDOUT_FILENO);
+    }
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  // Once 3 steps are written (frames appear in the partial bundle as they are taken), Ctrl-C.
+  auto frames_in = [](const fs::path& dir) {
+    std::error_code ec;
+    size_t n = 0;
+    for (auto it = fs::directory_iterator(dir / "frames", ec); !ec && it != fs::directory_iterator(); it.increment(ec)) ++n;
+    return n;
+  };
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  int status = 0;
+  bool exited = false;
+  while (frames_in(partial) < 12 && std::chrono::steady_clock::now() < deadline) {
+    if (::waitpid(child, &status, WNOHANG) == child) {
+      exited = true;
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  ASSERT_FALSE(exited) << "the scan ended before it could be interrupted: " << TextOr(err_path, "");
+  ASSERT_EQ(::kill(child, SIGINT), 0);
+  while (!exited && std::chrono::steady_clock::now() < deadline) {
+    exited = ::waitpid(child, &status, WNOHANG) == child;
+    if (!exited) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  if (!exited) {
+    ::kill(child, SIGKILL);
+    ::waitpid(child, &status, 0);
+    FAIL() << "the scan did not stop within 60 s of Ctrl-C";
+  }
+  const std::string err = TextOr(err_path, "");
+  std::printf("after Ctrl-C (exit %d):\n%s", WIFEXITED(status) ? WEXITSTATUS(status) : -1, err.c_str());
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by a signal, not stopped cleanly:\n" << err;
+  EXPECT_NE(WEXITSTATUS(status), 0) << err;
+  EXPECT_NE(err.find("interrupted"), std::string::npos) << err;
+  EXPECT_NE(err.find("--resume"), std::string::npos) << err;
+  EXPECT_EQ(TextOr(pins, "(no pins file)"), "left 0\nright 0\n");
+  EXPECT_FALSE(fs::exists(bundle));
+  ASSERT_TRUE(fs::exists(partial));
+
+  // The frames written before the signal, to compare after the resume.
+  auto partial_bundle = bundle::ReadBundle(partial);
+  std::map<std::string, std::string> before;
+  if (partial_bundle.ok()) {
+    for (const auto& f : partial_bundle.value().frames) before[f.file] = TextOr(partial / f.file, "");
+  } else {  // no bundle.json yet: the frames on disk
+    for (const auto& entry : fs::directory_iterator(partial / "frames")) {
+      before["frames/" + entry.path().filename().string()] = TextOr(entry.path(), "");
+    }
+  }
+  ASSERT_GE(before.size(), 12u);
+  ASSERT_LT(before.size(), static_cast<size_t>(kSteps * 4)) << "nothing was left to resume";
+  std::printf("%zu frames written before Ctrl-C\n", before.size());
+
+  std::string out;
+  std::string resume_err;
+  ASSERT_EQ(RunCli({"scan", "--device", "sim", "--camera", "virtual", "--scene", scene_, "--steps",
+                    std::to_string(kSteps), "--out", bundle.string(), "--resume"},
+                   &out, &resume_err),
+            0)
+      << resume_err;
+  std::printf("%s", out.c_str());
+  auto done = bundle::ReadBundle(bundle);
+  ASSERT_TRUE(done.ok()) << done.status().ToString();
+  std::map<std::pair<int, int>, int> count;
+  for (const auto& f : done.value().frames) ++count[{f.step, static_cast<int>(f.laser)}];
+  EXPECT_EQ(count.size(), static_cast<size_t>(kSteps * 4));
+  for (const auto& [key, n] : count) EXPECT_EQ(n, 1) << "step " << key.first << " laser " << key.second;
+  size_t kept = 0;
+  for (const auto& [file, bytes] : before) {
+    // A frame whose step was not complete may be taken again (a step is the unit of resume); a complete
+    // step's frames are kept as they were.
+    const auto now = ReadFile(fs::path(bundle) / file);
+    ASSERT_TRUE(now.ok()) << file << " is gone";
+    if (now.value() == bytes) ++kept;
+  }
+  EXPECT_GE(kept + 3, before.size()) << "frames written before Ctrl-C were taken again";
+  const int captured_now = [&] {
+    const auto at = out.find("frames captured ");
+    return at == std::string::npos ? -1 : std::atoi(out.c_str() + at + 16);
+  }();
+  EXPECT_LE(captured_now, kSteps * 4 - static_cast<int>(kept)) << out;
 }
 
 // `rotoscan scan --device ciclop:PTY` against the fake horus-fw board on a pseudo-terminal, with the virtual
