@@ -89,8 +89,8 @@ class CaptureHilTest : public ::testing::Test {
     fs::remove_all(dir_);
   }
 
-  HilRig Open(const std::string& spec = "usb") {
-    return testing::OpenHilRig(scene_path_, truth_.get(), kReconnectMs, spec);
+  HilRig Open(const std::string& spec = "usb", const std::vector<std::string>& camera_options = {}) {
+    return testing::OpenHilRig(scene_path_, truth_.get(), kReconnectMs, spec, camera_options);
   }
   // Every frame against the simulator's pin log (one laser state over its whole exposure, the table standing
   // at the step's angle), then the test's own on_frame_ (fault injection).
@@ -164,8 +164,10 @@ TEST_F(CaptureHilTest, HostStallTripsLaserSafetyAndTheScanResumes) {
   CheckBundleAndCloud(dir_ / "b");
 }
 
-TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
-  HilRig rig = Open();
+TEST_F(CaptureHilTest, DroppedFrameLostPacketAndShortUnplugMidScanStillEndComplete) {
+  // And a frame the camera loses (its 23rd exposure, step 5: the id is used, no frame comes): the shot is
+  // re-taken.
+  HilRig rig = Open("usb", {"drop=22"});
   ASSERT_NE(rig.camera, nullptr);
   bool dropped = false, unplugged = false;
   on_frame_ = [&](const CapturedFrame& c) {
@@ -193,6 +195,8 @@ TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
   ASSERT_NE(client_board, nullptr);
   EXPECT_GE(client_board->client().stats().retransmits, 1);
   EXPECT_EQ(client_board->client().stats().reconnects, 1);
+  EXPECT_EQ(summary.value().frames_dropped, 1);
+  EXPECT_GE(summary.value().shots_retaken, 1);
   rig.board.reset();
   EXPECT_FALSE(truth_->LaserAt(0, MonotonicNowUs()));
   EXPECT_FALSE(truth_->LaserAt(1, MonotonicNowUs()));
