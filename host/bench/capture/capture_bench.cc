@@ -93,13 +93,7 @@ class MemorySteps : public pipeline::StepSource {
     s.step = c.step;
     s.table_angle_rad = c.table_angle_rad;
     s.name = "step " + std::to_string(c.step);
-    const cv::Mat image = c.frame->image.clone();
-    switch (c.laser) {
-      case bundle::LaserState::kLeft: s.laser[0] = image; break;
-      case bundle::LaserState::kRight: s.laser[1] = image; break;
-      case bundle::LaserState::kOff: s.off = image; break;
-      case bundle::LaserState::kNatural: s.natural = image; break;
-    }
+    s.Set(c.laser, c.frame->image.clone());
   }
 
  private:

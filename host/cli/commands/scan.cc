@@ -76,12 +76,8 @@ class LiveSource : public pipeline::StepSource {
     s.table_angle_rad = c.table_angle_rad;
     s.name = "step " + std::to_string(c.step);
     const cv::Mat image = c.frame->image.clone();
-    switch (c.laser) {
-      case bundle::LaserState::kLeft: s.laser[0] = image; break;
-      case bundle::LaserState::kRight: s.laser[1] = image; break;
-      case bundle::LaserState::kOff: s.off = image; break;
-      case bundle::LaserState::kNatural: s.natural = image; last_natural_ = image; break;
-    }
+    s.Set(c.laser, image);
+    if (c.laser == bundle::LaserState::kNatural) last_natural_ = image;
   }
   void StepDone(int step) {
     {

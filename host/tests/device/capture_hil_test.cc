@@ -107,6 +107,15 @@ class CaptureHilTest : public ::testing::Test {
     testing::CheckHilBundleAndCloud(bundle_dir, scene_path_, steps);
   }
 
+  // The board unplugged now and plugged in again 300 ms later (within reconnect_ms and the laser safety).
+  void UnplugForAWhile() {
+    usb_->Unplug();
+    replug_ = std::thread([this] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(300));
+      usb_->Replug();
+    });
+  }
+
   static constexpr int kReconnectMs = 1000;
   fs::path dir_;
   fs::path scene_path_;
@@ -177,11 +186,7 @@ TEST_F(CaptureHilTest, DroppedFrameLostPacketAndShortUnplugMidScanStillEndComple
     }
     if (c.step == 9 && !unplugged) {
       unplugged = true;
-      usb_->Unplug();
-      replug_ = std::thread([this] {
-        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // within reconnect_ms and laser safety
-        usb_->Replug();
-      });
+      UnplugForAWhile();
     }
   };
   auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
@@ -256,11 +261,7 @@ TEST_F(CaptureHilTest, TwoBoardsTheReplugedOneIsFoundAgainBySerial) {
   on_frame_ = [&](const CapturedFrame& c) {
     if (c.step == 6 && !unplugged) {
       unplugged = true;
-      usb_->Unplug();
-      replug_ = std::thread([this] {
-        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // within reconnect_ms and laser safety
-        usb_->Replug();
-      });
+      UnplugForAWhile();
     }
   };
   auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
