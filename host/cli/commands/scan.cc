@@ -7,16 +7,15 @@
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <ostream>
 #include <thread>
 
-#include <opencv2/calib3d.hpp>
-#include <opencv2/imgproc.hpp>
-
 #include "command.h"
+#include "rotoscan/calib/camera_calibration.h"
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/capture/scan.h"
 #include "rotoscan/cloud/cloud.h"
@@ -38,6 +37,7 @@ struct ScanCommandOptions {
   std::string cloud;
   std::vector<std::string> backend_options;
   int steps = 200;
+  double step_deg = 0.0;  // 0: 360 / steps
   int placement = 0;
   double fps = 30.0;
   int64_t laser_exposure_us = 2000;
@@ -45,6 +45,8 @@ struct ScanCommandOptions {
   int natural_every = 1;
   int target_cols = 9, target_rows = 6;
   double target_square_mm = 7.0;
+  double target_origin_height_mm = std::numeric_limits<double>::quiet_NaN();
+  int stop_without_board = 3;
   bool live = false;
   bool shared_off = false;
   bool resume = false;
@@ -74,12 +76,8 @@ class LiveSource : public pipeline::StepSource {
     s.table_angle_rad = c.table_angle_rad;
     s.name = "step " + std::to_string(c.step);
     const cv::Mat image = c.frame->image.clone();
-    switch (c.laser) {
-      case bundle::LaserState::kLeft: s.laser[0] = image; break;
-      case bundle::LaserState::kRight: s.laser[1] = image; break;
-      case bundle::LaserState::kOff: s.off = image; break;
-      case bundle::LaserState::kNatural: s.natural = image; last_natural_ = image; break;
-    }
+    s.Set(c.laser, image);
+    if (c.laser == bundle::LaserState::kNatural) last_natural_ = image;
   }
   void StepDone(int step) {
     {
@@ -160,6 +158,7 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
 
   capture::ScanOptions options;
   options.steps = o.steps;
+  options.step_deg = o.step_deg;
   options.timing = *timing;
   options.frame_rate_hz = o.fps;
   options.laser_exposure_us = o.laser_exposure_us;
@@ -194,28 +193,43 @@ int RunScanCommand(const ScanCommandOptions& o, const Context& context) {
     header.target.cols = o.target_cols;
     header.target.rows = o.target_rows;
     header.target.square_mm = o.target_square_mm;
+    header.target.origin_height_mm = o.target_origin_height_mm;
   }
 
-  // Calibration: each view is looked at for the board as it is taken, so a board that is not found is
-  // known at once, not after the sweep.
+  // Calibration: each view is looked at for the board as it is taken (the detector `rotoscan calibrate`
+  // uses), so a board that is not found is known at once, not after the sweep: each such view is named on
+  // stderr as it is taken. A board missing from the first --stop-without-board views (3 by default) stops
+  // the capture: the pattern given is wrong, or the board is out of view or unlit, and the rest of the
+  // sweep would be wasted. Later views without it only warn: a board on the table turns edge-on at the ends
+  // of a sweep. The partial bundle is kept (--resume continues it once fixed, --overwrite starts again).
   int views = 0, views_without_target = 0;
   const bool check_board =
       *target == bundle::TargetKind::kCheckerboard || *target == bundle::TargetKind::kTableCheckerboard;
+  calib::CheckerboardPattern pattern;
+  if (check_board) {
+    auto parsed = calib::ParsePattern(std::to_string(o.target_cols) + "x" + std::to_string(o.target_rows),
+                                      o.target_square_mm);
+    if (!parsed.ok()) return ReportStatus(context, "scan", parsed.status());
+    pattern = *parsed;
+  }
   std::unique_ptr<LiveSource> live;
   if (o.live) live = std::make_unique<LiveSource>(o.steps, o.shared_off);
   options.on_frame = [&](const capture::CapturedFrame& c) -> Status {
     if (live) live->Add(c);
-    if (check_board && c.laser == bundle::LaserState::kNatural) {
+    if (check_board && c.laser == bundle::LaserState::kNatural && !c.resumed) {
       ++views;
-      cv::Mat gray;
-      if (c.frame->image.channels() == 3) cv::cvtColor(c.frame->image, gray, cv::COLOR_BGR2GRAY);
-      else gray = c.frame->image;
-      std::vector<cv::Point2f> corners;
-      if (!cv::findChessboardCorners(gray, cv::Size(o.target_cols, o.target_rows), corners,
-                                     cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE)) {
+      if (!calib::DetectCheckerboard(c.frame->image, pattern).ok()) {
         ++views_without_target;
         *context.err << "rotoscan scan: view " << c.step << ": no " << o.target_cols << "x" << o.target_rows
                      << " board found (lighting, focus, or --target-cols/--target-rows?)\n";
+        if (o.stop_without_board > 0 && views == o.stop_without_board && views_without_target == views) {
+          return FailedPreconditionError(
+              "no " + std::to_string(o.target_cols) + "x" + std::to_string(o.target_rows) +
+              " board found in the first " + std::to_string(views) +
+              " views: check --target-cols/--target-rows, that the whole board is in view and lit; stopped "
+              "(--resume continues the capture, --overwrite starts it again, --stop-without-board 0 never "
+              "stops)");
+        }
       }
     }
     return Status::Ok();
@@ -279,6 +293,10 @@ void RegisterScan(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--calib", o->calib, "calib.yaml: the camera model in bundle.json, and the rig for --live");
   sub->add_option("--out", o->out, "output bundle directory")->required();
   sub->add_option("--steps", o->steps, "table steps over 360° (or views)")->capture_default_str()->check(CLI::Range(1, 100000));
+  sub->add_option("--step-deg", o->step_deg,
+                  "table step, degrees (default 360 / --steps); calibration views: e.g. --steps 8 --step-deg 15 "
+                  "turns a board on the table through 105 degrees")
+      ->check(CLI::Range(0.0, 360.0));
   sub->add_flag("--live", o->live, "extract and triangulate while scanning (needs --calib)");
   sub->add_option("--cloud", o->cloud, "--live: the cloud to write (default BUNDLE.ply)");
   sub->add_option("--timing", o->timing, "auto, triggered or free-running")->capture_default_str();
@@ -293,6 +311,14 @@ void RegisterScan(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--target-cols", o->target_cols, "calibration board inner corners across")->check(CLI::Range(2, 100));
   sub->add_option("--target-rows", o->target_rows, "calibration board inner corners down")->check(CLI::Range(2, 100));
   sub->add_option("--target-square", o->target_square_mm, "calibration board square, mm")->check(CLI::Range(0.1, 1000.0));
+  sub->add_option("--stop-without-board", o->stop_without_board,
+                  "checkerboard kinds: stop when the board is found in none of the first N views (0: never)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 100000));
+  sub->add_option("--target-origin-height", o->target_origin_height_mm,
+                  "table-checkerboard: height of the board's first inner corner above the table top, mm "
+                  "(measured once; puts the table frame's origin on the table top)")
+      ->check(CLI::Range(-1000.0, 1000.0));
   sub->add_option("--placement", o->placement,
                   "the object's placement on the table (0 the first; 1 e.g. on its side), recorded in the "
                   "bundle for `rotoscan merge`; the virtual camera renders the scene's placement N")

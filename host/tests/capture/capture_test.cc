@@ -169,12 +169,18 @@ TEST_F(CaptureTest, TriggeredWithFaultsEndsComplete) {
     EXPECT_NEAR(truth->TableAngleAt(c.frame->exposure_start_us), c.table_angle_rad, 1e-9);
     return Status::Ok();
   };
-  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, nullptr);
+  // The progress bar counts steps and, beside them, every frame the camera delivered (its frames/s).
+  ProgressBar bar(ProgressBar::Mode::kNever);
+  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, &bar);
   ASSERT_TRUE(summary.ok()) << summary.status().ToString();
   const auto& s = summary.value();
   EXPECT_EQ(s.frames_used, 24) << s.Summary();
   EXPECT_GE(s.frames_dropped, 1) << s.Summary();
   EXPECT_GE(s.shots_retaken, 1) << s.Summary();
+  EXPECT_EQ(bar.done(), 6u);
+  EXPECT_EQ(bar.secondary_done(), static_cast<uint64_t>(s.frames_captured));
+  EXPECT_GT(bar.secondary_done(), 24u);  // the re-taken shots' frames too
+  EXPECT_NE(bar.FormatLine(1.0).find("6/6 steps"), std::string::npos) << bar.FormatLine(1.0);
   auto bundle = bundle::ReadBundle(dir_ / "b");
   ASSERT_TRUE(bundle.ok());
   EXPECT_EQ(bundle.value().frames.size(), 24u);

@@ -64,6 +64,33 @@ TEST(ProgressBarTest, FormatsFractionRateAndEta) {
   EXPECT_NE(line.find("[########"), std::string::npos) << line;
 }
 
+// A scan: steps are the units, frames (several a step) the second count, both rates shown, the time left
+// from the steps.
+TEST(ProgressBarTest, FormatsASecondCountWithItsOwnRate) {
+  ProgressBar bar(ProgressBar::Mode::kNever);
+  bar.Begin("scan", 1200);
+  bar.SetUnits("steps", "frames");
+  bar.Advance(300);
+  bar.AdvanceSecondary(1230);  // 4 a step and 30 more (re-takes, frames rejected)
+  const std::string line = bar.FormatLine(41.0);  // 300 steps in 41 s: 7.3/s, 900 left -> 123 s
+  EXPECT_NE(line.find(" 25% 300/1200 steps"), std::string::npos) << line;
+  EXPECT_NE(line.find("  7.3 steps/s"), std::string::npos) << line;
+  EXPECT_NE(line.find("  30.0 frames/s"), std::string::npos) << line;
+  EXPECT_NE(line.find("eta 123s"), std::string::npos) << line;
+  EXPECT_EQ(bar.secondary_done(), 1230u);
+  bar.Advance(900);
+  bar.AdvanceSecondary(3600);
+  const std::string last = bar.FormatLine(164.0);  // done: the frames taken and the time, no rate
+  EXPECT_NE(last.find("100% 1200/1200 steps  4830 frames  164.0s"), std::string::npos) << last;
+  // Units and the second count belong to one phase.
+  bar.Begin("process", 10);
+  bar.Advance(5);
+  const std::string next = bar.FormatLine(1.0);
+  EXPECT_EQ(next.find("frames"), std::string::npos) << next;
+  EXPECT_NE(next.find(" 50% 5/10  5.0/s  eta 1s"), std::string::npos) << next;
+  EXPECT_EQ(bar.secondary_done(), 0u);
+}
+
 TEST(ProgressBarTest, CountsFromManyThreads) {
   ProgressBar bar(ProgressBar::Mode::kNever);
   bar.Begin("x", 4000);

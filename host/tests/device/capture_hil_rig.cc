@@ -31,18 +31,19 @@ void WriteHilScene(const fs::path& path) {
       "objects": [{"type": "sphere", "radius_mm": 20, "position_mm": [12, 0, 0], "color": [0.8, 0.8, 0.8]}]})";
 }
 
-HilRig OpenHilRig(const fs::path& scene_path, RigTruth* truth, int reconnect_ms) {
+HilRig OpenHilRig(const fs::path& scene_path, RigTruth* truth, int reconnect_ms, const std::string& board_spec,
+                  const std::vector<std::string>& camera_options) {
   HilRig rig;
   rig.context.scene_path = scene_path.string();
   rig.context.truth = truth;
   rig.context.options = {"steps_per_rev=" + std::to_string(kHilStepsPerRev),
                          "reconnect_ms=" + std::to_string(reconnect_ms)};
-  auto board = OpenBoard("usb", &rig.context);
+  auto board = OpenBoard(board_spec, &rig.context);
   EXPECT_TRUE(board.ok()) << board.status().ToString();
   if (!board.ok()) return rig;
   rig.board = std::move(board).value();
   rig.context.board = rig.board.get();
-  rig.context.options.clear();
+  rig.context.options = camera_options;
   auto camera = OpenCamera("virtual", rig.context);
   EXPECT_TRUE(camera.ok()) << camera.status().ToString();
   if (camera.ok()) rig.camera = std::move(camera).value();

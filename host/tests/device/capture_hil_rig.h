@@ -12,6 +12,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/capture/scan.h"
@@ -37,9 +38,11 @@ struct HilRig {
   std::unique_ptr<Camera> camera;
   OpenContext context;
 };
-// Opens the `usb` board (reconnect window `reconnect_ms`) and the `virtual` camera rendering `scene_path`
-// from `truth`. Failures are gtest failures; the rig then lacks what did not open.
-HilRig OpenHilRig(const std::filesystem::path& scene_path, RigTruth* truth, int reconnect_ms = 1000);
+// Opens the board `board_spec` ("usb", or "usb:SERIAL"; reconnect window `reconnect_ms`) and the `virtual`
+// camera rendering `scene_path` from `truth`, with `camera_options` (e.g. "drop=21": a frame lost). Failures are gtest failures; the rig then lacks what did not
+// open.
+HilRig OpenHilRig(const std::filesystem::path& scene_path, RigTruth* truth, int reconnect_ms = 1000,
+                  const std::string& board_spec = "usb", const std::vector<std::string>& camera_options = {});
 
 // Options of a hardware-triggered scan of `steps` steps; every frame is checked against `truth`: exposed
 // inside one laser state, the laser the frame says, the table standing at the frame's angle over the whole

@@ -24,8 +24,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
-#include <map>
 #include <thread>
 
 #ifdef ROTOSCAN_TEST_ARAVIS
@@ -42,11 +40,11 @@
 #endif
 #include "capture/client_board.h"
 #include "capture/sim_rig_truth.h"
+#include "capture_hil_rig.h"
 #include "mock_usb_board.h"
 #include "rotoscan/bundle/bundle.h"
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/capture/scan.h"
-#include "rotoscan/pipeline/process.h"
 #include "rotoscan/sim/scene.h"
 #include "fake_board.h"
 #include "sim_board.h"
@@ -57,18 +55,14 @@ namespace {
 namespace fs = std::filesystem;
 using device::testing::MockUsbBoard;
 using device::testing::SimBoard;
+using testing::HilRig;
 
 constexpr int kSteps = 16;
-constexpr int kStepsPerRev = 3200;  // a 200-step motor at 16 microsteps, direct drive: 200 steps per 22.5°
-constexpr double kRadiusMm = 20.0;
-const Eigen::Vector3d kCentre(12.0, 0.0, 20.0);  // off the axis: a frame at the wrong angle leaves the sphere
-// Points from the true rig on the true sphere: what the virtual-time scans reach (0.05 mm), with room for
-// the frames of a real-time scan.
-constexpr double kRmsToleranceMm = 0.1;
-constexpr double kWorstToleranceMm = 1.0;
 // The firmware core's unique id ("ROTOSCANSIM1", firmware/port/sim) in hex: its USB serial number string.
 const char* const kSimSerial = "524F544F5343414E53494D31";
 
+// The scene, the rig's opening, the scan's options with the check of every frame against the truth, and the
+// check of the bundle and its cloud: capture_hil_rig (shared with capture_hil_emu_test).
 class CaptureHilTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -79,15 +73,14 @@ class CaptureHilTest : public ::testing::Test {
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     scene_path_ = dir_ / "scene.json";
-    std::ofstream(scene_path_) << R"({"camera": {"width": 256, "height": 192, "hfov_deg": 20},
-      "objects": [{"type": "sphere", "radius_mm": 20, "position_mm": [12, 0, 0], "color": [0.8, 0.8, 0.8]}]})";
+    testing::WriteHilScene(scene_path_);
     MockUsbBoard::Options options;
     options.real_time = true;
     options.real_us_per_tick = 100;
     options.serial = kSimSerial;
     usb_ = std::make_unique<MockUsbBoard>(&sim_, options);
     MockUsbBoard* usb = usb_.get();
-    truth_ = std::make_unique<internal::SimRigTruth>(usb->device_zero_host_us(), 2.0 * M_PI / kStepsPerRev,
+    truth_ = std::make_unique<internal::SimRigTruth>(usb->device_zero_host_us(), 2.0 * M_PI / testing::kHilStepsPerRev,
                                                      [usb](const std::function<void()>& f) { usb->WithBoardAtNow(f); });
   }
   void TearDown() override {
@@ -96,86 +89,34 @@ class CaptureHilTest : public ::testing::Test {
     fs::remove_all(dir_);
   }
 
-  struct Rig {
-    std::unique_ptr<Board> board;
-    std::unique_ptr<Camera> camera;
-    OpenContext context;
-  };
-  Rig Open(const std::string& spec = "usb") {
-    Rig rig;
-    rig.context.scene_path = scene_path_.string();
-    rig.context.truth = truth_.get();
-    rig.context.options = {"steps_per_rev=" + std::to_string(kStepsPerRev), "reconnect_ms=1000"};
-    auto board = OpenBoard(spec, &rig.context);
-    EXPECT_TRUE(board.ok()) << board.status().ToString();
-    if (!board.ok()) return rig;
-    rig.board = std::move(board).value();
-    rig.context.board = rig.board.get();
-    rig.context.options.clear();
-    auto camera = OpenCamera("virtual", rig.context);
-    EXPECT_TRUE(camera.ok()) << camera.status().ToString();
-    if (camera.ok()) rig.camera = std::move(camera).value();
-    return rig;
+  HilRig Open(const std::string& spec = "usb", const std::vector<std::string>& camera_options = {}) {
+    return testing::OpenHilRig(scene_path_, truth_.get(), kReconnectMs, spec, camera_options);
   }
-
+  // Every frame against the simulator's pin log (one laser state over its whole exposure, the table standing
+  // at the step's angle), then the test's own on_frame_ (fault injection).
   ScanOptions Options() {
-    ScanOptions o;
-    o.steps = kSteps;
-    o.timing = Timing::kTriggered;
-    o.frame_rate_hz = 30.0;
-    o.header.kind = bundle::BundleKind::kScan;
-    o.header.created_by = "capture_hil_test";
-    auto scene = sim::LoadScene(scene_path_);
-    o.header.camera.name = "virtual";
-    o.header.camera.model = scene.value().rig.camera;
-    o.header.camera.laser_exposure_us = 2000;
-    o.header.camera.natural_exposure_us = 20000;
-    // Every frame against the simulator's pin log: one laser state over its whole exposure, the table
-    // standing at the step's angle.
-    o.on_frame = [this](const CapturedFrame& c) {
-      const int64_t start = c.frame->exposure_start_us;
-      const int64_t end = c.frame->ExposureEndUs();
-      EXPECT_TRUE(truth_->LaserSwitches(start, end).empty())
-          << "step " << c.step << " " << bundle::LaserStateName(c.laser) << " exposed across a laser switch";
-      double left = 0, right = 0;
-      truth_->LaserFractions(start, end, &left, &right);
-      EXPECT_EQ(left, c.laser == bundle::LaserState::kLeft ? 1.0 : 0.0) << "step " << c.step;
-      EXPECT_EQ(right, c.laser == bundle::LaserState::kRight ? 1.0 : 0.0) << "step " << c.step;
-      EXPECT_NEAR(truth_->TableAngleAt(start), c.table_angle_rad, 1e-9) << "step " << c.step;
-      EXPECT_NEAR(truth_->TableAngleAt(end), c.table_angle_rad, 1e-9) << "step " << c.step;
-      ++frames_checked_;
-      if (on_frame_) on_frame_(c);
-      return Status::Ok();
-    };
-    return o;
+    return testing::HilScanOptions(
+        kSteps, scene_path_, truth_.get(), &frames_checked_,
+        [this](const CapturedFrame& c) {
+          if (on_frame_) on_frame_(c);
+        },
+        "capture_hil_test");
   }
-
   // The bundle holds every (step, laser) once; the cloud lies on the true sphere.
   void CheckBundleAndCloud(const fs::path& bundle_dir, int steps = kSteps) {
-    auto bundle = bundle::ReadBundle(bundle_dir);
-    ASSERT_TRUE(bundle.ok()) << bundle.status().ToString();
-    std::map<std::pair<int, int>, int> count;
-    for (const auto& f : bundle.value().frames) ++count[{f.step, static_cast<int>(f.laser)}];
-    EXPECT_EQ(count.size(), static_cast<size_t>(steps * 4));
-    for (const auto& [key, n] : count) EXPECT_EQ(n, 1) << "step " << key.first << " laser " << key.second;
-    auto scene = sim::LoadScene(scene_path_);
-    ASSERT_TRUE(scene.ok());
-    auto processed = pipeline::ProcessBundle(bundle_dir, scene.value().rig, pipeline::ProcessOptions{});
-    ASSERT_TRUE(processed.ok()) << processed.status().ToString();
-    const auto& cloud = processed.value().cloud;
-    ASSERT_GT(cloud.size(), static_cast<size_t>(steps * 25));
-    double sum2 = 0.0, worst = 0.0;
-    for (const auto& point : cloud.points) {
-      const double d = std::abs((point.position_in_table.cast<double>() - kCentre).norm() - kRadiusMm);
-      sum2 += d * d;
-      worst = std::max(worst, d);
-    }
-    const double rms = std::sqrt(sum2 / static_cast<double>(cloud.size()));
-    std::printf("cloud: %zu points, %.4f mm RMS from the true sphere, worst %.3f mm\n", cloud.size(), rms, worst);
-    EXPECT_LT(rms, kRmsToleranceMm);
-    EXPECT_LT(worst, kWorstToleranceMm);
+    testing::CheckHilBundleAndCloud(bundle_dir, scene_path_, steps);
   }
 
+  // The board unplugged now and plugged in again 300 ms later (within reconnect_ms and the laser safety).
+  void UnplugForAWhile() {
+    usb_->Unplug();
+    replug_ = std::thread([this] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(300));
+      usb_->Replug();
+    });
+  }
+
+  static constexpr int kReconnectMs = 1000;
   fs::path dir_;
   fs::path scene_path_;
   SimBoard sim_;
@@ -187,7 +128,7 @@ class CaptureHilTest : public ::testing::Test {
 };
 
 TEST_F(CaptureHilTest, TriggeredScanOverTheMockedBusEndsInACloudOnTheSurface) {
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   EXPECT_TRUE(rig.board->capabilities().trigger_output);
   auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
@@ -215,7 +156,7 @@ TEST_F(CaptureHilTest, TriggeredScanOverTheMockedBusEndsInACloudOnTheSurface) {
 // The host stalls for longer than the board's laser timeout (a loaded machine): the board stops the program
 // and turns the lasers off; the scan resumes it and ends complete, no frame tied to the wrong step.
 TEST_F(CaptureHilTest, HostStallTripsLaserSafetyAndTheScanResumes) {
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   bool stalled = false;
   on_frame_ = [&](const CapturedFrame& c) {
@@ -232,8 +173,10 @@ TEST_F(CaptureHilTest, HostStallTripsLaserSafetyAndTheScanResumes) {
   CheckBundleAndCloud(dir_ / "b");
 }
 
-TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
-  Rig rig = Open();
+TEST_F(CaptureHilTest, DroppedFrameLostPacketAndShortUnplugMidScanStillEndComplete) {
+  // And a frame the camera loses (its 23rd exposure, step 5: the id is used, no frame comes): the shot is
+  // re-taken.
+  HilRig rig = Open("usb", {"drop=22"});
   ASSERT_NE(rig.camera, nullptr);
   bool dropped = false, unplugged = false;
   on_frame_ = [&](const CapturedFrame& c) {
@@ -243,11 +186,7 @@ TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
     }
     if (c.step == 9 && !unplugged) {
       unplugged = true;
-      usb_->Unplug();
-      replug_ = std::thread([this] {
-        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // within reconnect_ms and laser safety
-        usb_->Replug();
-      });
+      UnplugForAWhile();
     }
   };
   auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
@@ -261,6 +200,8 @@ TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
   ASSERT_NE(client_board, nullptr);
   EXPECT_GE(client_board->client().stats().retransmits, 1);
   EXPECT_EQ(client_board->client().stats().reconnects, 1);
+  EXPECT_EQ(summary.value().frames_dropped, 1);
+  EXPECT_GE(summary.value().shots_retaken, 1);
   rig.board.reset();
   EXPECT_FALSE(truth_->LaserAt(0, MonotonicNowUs()));
   EXPECT_FALSE(truth_->LaserAt(1, MonotonicNowUs()));
@@ -270,7 +211,7 @@ TEST_F(CaptureHilTest, LostPacketAndShortUnplugMidScanStillEndComplete) {
 TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndResumes) {
   int64_t unplugged_at = 0;
   {
-    Rig rig = Open();
+    HilRig rig = Open();
     ASSERT_NE(rig.camera, nullptr);
     on_frame_ = [&](const CapturedFrame& c) {
       if (c.step == 6 && unplugged_at == 0) {
@@ -279,29 +220,17 @@ TEST_F(CaptureHilTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndRes
       }
     };
     auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
-    ASSERT_FALSE(summary.ok());
-    std::printf("the scan stopped: %s\n", summary.status().ToString().c_str());
-    EXPECT_EQ(summary.status().code(), StatusCode::kDeviceError) << summary.status().ToString();
-    EXPECT_NE(summary.status().message().find("1000 ms"), std::string::npos) << summary.status().ToString();
+    testing::ExpectReconnectWindowError(summary.status(), kReconnectMs);
   }
   on_frame_ = nullptr;
   EXPECT_TRUE(fs::exists(dir_ / "b.partial"));
   EXPECT_FALSE(fs::exists(dir_ / "b"));
   // The host could not reach the board: the board's laser safety turned the lasers off after its timeout
-  // (MotionConfig::laser_timeout_ms, 2 s) of silence. Wait for it in real time, then look at the pins.
-  // The board's time is run up to the host's at each read of the truth (WithBoardAtNow), so one absolute
-  // wait for the host's time is the condition itself, however late the mock's clock thread runs.
-  const int64_t timeout_us = device::MotionConfig{}.laser_timeout_ms * 1000LL;
-  MakeRealClock()->WaitUntilUs(unplugged_at + timeout_us + 300'000);
-  const int64_t now = MonotonicNowUs();
-  EXPECT_FALSE(truth_->LaserAt(0, now));
-  EXPECT_FALSE(truth_->LaserAt(1, now));
-  const auto switches = truth_->LaserSwitches(unplugged_at, now);
-  ASSERT_FALSE(switches.empty());
-  EXPECT_LE(switches.back(), unplugged_at + timeout_us + 200'000) << "lasers went off late";
+  // (MotionConfig::laser_timeout_ms, 2 s) of silence, on the pins.
+  testing::ExpectLaserSafetyAfterUnplug(*truth_, unplugged_at);
 
   usb_->Replug();
-  Rig rig = Open();
+  HilRig rig = Open();
   ASSERT_NE(rig.camera, nullptr);
   ScanOptions o = Options();
   o.resume = true;
@@ -324,7 +253,7 @@ TEST_F(CaptureHilTest, TwoBoardsTheReplugedOneIsFoundAgainBySerial) {
   other_options.port = 2;
   other_options.address = 3;  // the address the scanning board's re-plug would take next: it must skip it
   MockUsbBoard other_usb(&other, other_options);
-  Rig rig = Open(std::string("usb:") + kSimSerial);
+  HilRig rig = Open(std::string("usb:") + kSimSerial);
   ASSERT_NE(rig.camera, nullptr);
   EXPECT_EQ(rig.board->info().serial, "524f544f5343414e53494d31");
   const int address_before = usb_->address();
@@ -332,11 +261,7 @@ TEST_F(CaptureHilTest, TwoBoardsTheReplugedOneIsFoundAgainBySerial) {
   on_frame_ = [&](const CapturedFrame& c) {
     if (c.step == 6 && !unplugged) {
       unplugged = true;
-      usb_->Unplug();
-      replug_ = std::thread([this] {
-        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // within reconnect_ms and laser safety
-        usb_->Replug();
-      });
+      UnplugForAWhile();
     }
   };
   auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
@@ -374,6 +299,7 @@ struct FakeFeed {
   std::vector<Fill> fills;
   uint64_t count = 0;
   int bad_fills = 0;  // buffers of another format or size than asked for
+  ArvBuffer* ignore = nullptr;  // a buffer the test fills itself (a frame never delivered): not recorded
 
   static void Callback(ArvBuffer* buffer, void* data, guint32 exposure_time_us, guint32, ArvPixelFormat format) {
     auto* feed = static_cast<FakeFeed*>(data);
@@ -400,7 +326,7 @@ struct FakeFeed {
                                                  PixelFormat::kBgr8);
     cv::Mat rgb(camera.height, camera.width, CV_8UC3, bytes);
     cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
-    feed->fills.push_back({end, exposure});
+    if (buffer != feed->ignore) feed->fills.push_back({end, exposure});
   }
   // The fill nearest a frame's end as the backend saw it (within `within_us`).
   std::optional<Fill> Nearest(int64_t end_us, int64_t within_us) {
@@ -413,77 +339,160 @@ struct FakeFeed {
   }
 };
 
-TEST_F(CaptureHilTest, AravisFakeCameraFreeRunningOverTheMockedBusEndsInACloudOnTheSurface) {
-  // Only Aravis's fake interface: discovery elsewhere waits for the network and could find real cameras.
-  for (unsigned i = 0; i < arv_get_n_interfaces(); ++i) {
-    const std::string id = arv_get_interface_id(i);
-    if (id != "Fake") arv_disable_interface(id.c_str());
-  }
-  arv_enable_interface("Fake");
-  Rig rig;
-  rig.context.options = {"steps_per_rev=" + std::to_string(kStepsPerRev), "reconnect_ms=1000"};
-  auto board = OpenBoard("usb", &rig.context);
-  ASSERT_TRUE(board.ok()) << board.status().ToString();
-  rig.board = std::move(board).value();
-  rig.context.options.clear();
-  auto opened = OpenCamera("aravis:Fake_1", rig.context);
-  ASSERT_TRUE(opened.ok()) << opened.status().ToString();
-  rig.camera = std::move(opened).value();
-  auto* aravis = dynamic_cast<AravisCamera*>(rig.camera.get());
-  ASSERT_NE(aravis, nullptr);
-
-  auto scene = sim::LoadScene(scene_path_);
-  ASSERT_TRUE(scene.ok());
-  auto renderer = sim::Renderer::Create(scene.value());
-  ASSERT_TRUE(renderer.ok()) << renderer.status().ToString();
-  FakeFeed feed;
-  feed.renderer = renderer.value().get();
-  feed.truth = truth_.get();
-  feed.natural_threshold_us = internal::NaturalThresholdUs(scene.value());
-  CameraSettings settings;
-  settings.width = scene.value().rig.camera.width;
-  settings.height = scene.value().rig.camera.height;
-  settings.format = PixelFormat::kBgr8;
-  auto configured = rig.camera->Configure(settings);
-  ASSERT_TRUE(configured.ok()) << configured.status().ToString();
-  ArvFakeCamera* fake =
-      arv_fake_device_get_fake_camera(ARV_FAKE_DEVICE(arv_camera_get_device(aravis->arv_camera())));
-  arv_fake_camera_set_fill_pattern(fake, &FakeFeed::Callback, &feed);
-
-  constexpr int kAravisSteps = 8;
-  ScanOptions o = Options();
-  o.steps = kAravisSteps;
-  o.timing = Timing::kFreeRunning;
-  // Check each frame written against the fill it came from: its true window inside one laser state.
-  int checked = 0;
-  o.on_frame = [&](const CapturedFrame& c) {
-    const auto fill = feed.Nearest(c.frame->ExposureEndUs(), 15'000);
-    EXPECT_TRUE(fill.has_value()) << "step " << c.step << ": no fill of the fake camera near this frame";
-    if (!fill) return Status::Ok();
-    const int64_t start = fill->end_us - fill->exposure_us;
-    EXPECT_EQ(fill->exposure_us, c.laser == bundle::LaserState::kNatural ? 20000 : 2000) << "step " << c.step;
-    EXPECT_TRUE(truth_->LaserSwitches(start, fill->end_us).empty())
-        << "step " << c.step << " " << bundle::LaserStateName(c.laser) << " exposed across a laser switch";
-    double left = 0, right = 0;
-    truth_->LaserFractions(start, fill->end_us, &left, &right);
-    EXPECT_EQ(left, c.laser == bundle::LaserState::kLeft ? 1.0 : 0.0) << "step " << c.step;
-    EXPECT_EQ(right, c.laser == bundle::LaserState::kRight ? 1.0 : 0.0) << "step " << c.step;
-    EXPECT_NEAR(truth_->TableAngleAt(start), c.table_angle_rad, 1e-9) << "step " << c.step;
-    EXPECT_NEAR(truth_->TableAngleAt(fill->end_us), c.table_angle_rad, 1e-9) << "step " << c.step;
-    ++checked;
-    return Status::Ok();
+// The Aravis scan: the `usb` board and Aravis's fake camera fed by FakeFeed, free-running. `fault` (may be
+// null) runs after each frame written, with the fake camera at hand (fault injection). Every frame written is
+// checked against the fill it came from (its true window inside one laser state, at the step's angle); the
+// bundle holds every (step, laser) once and its cloud lies on the true sphere.
+class CaptureHilAravisTest : public CaptureHilTest {
+ protected:
+  static constexpr int kAravisSteps = 8;
+  struct Outcome {
+    ScanSummary summary;
+    AravisCounters counters;
   };
-  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, nullptr);
-  arv_fake_camera_set_fill_pattern(fake, nullptr, nullptr);
-  ASSERT_TRUE(summary.ok()) << summary.status().ToString();
-  std::printf("aravis fake: %s\n", summary.value().Summary().c_str());
-  EXPECT_EQ(summary.value().timing, Timing::kFreeRunning);
-  EXPECT_EQ(summary.value().frames_used, kAravisSteps * 4);
-  EXPECT_EQ(checked, kAravisSteps * 4);
-  EXPECT_EQ(feed.bad_fills, 0);
-  rig.camera.reset();
-  rig.board.reset();
-  CheckBundleAndCloud(dir_ / "b", kAravisSteps);
+  using Fault = std::function<void(const CapturedFrame&, ArvFakeCamera*)>;
+
+  void Scan(const Fault& fault, Outcome* outcome) {
+    // Only Aravis's fake interface: discovery elsewhere waits for the network and could find real cameras.
+    for (unsigned i = 0; i < arv_get_n_interfaces(); ++i) {
+      const std::string id = arv_get_interface_id(i);
+      if (id != "Fake") arv_disable_interface(id.c_str());
+    }
+    arv_enable_interface("Fake");
+    HilRig rig;
+    rig.context.options = {"steps_per_rev=" + std::to_string(testing::kHilStepsPerRev),
+                           "reconnect_ms=" + std::to_string(kReconnectMs)};
+    auto board = OpenBoard("usb", &rig.context);
+    ASSERT_TRUE(board.ok()) << board.status().ToString();
+    rig.board = std::move(board).value();
+    rig.context.options.clear();
+    auto opened = OpenCamera("aravis:Fake_1", rig.context);
+    ASSERT_TRUE(opened.ok()) << opened.status().ToString();
+    rig.camera = std::move(opened).value();
+    auto* aravis = dynamic_cast<AravisCamera*>(rig.camera.get());
+    ASSERT_NE(aravis, nullptr);
+
+    auto scene = sim::LoadScene(scene_path_);
+    ASSERT_TRUE(scene.ok());
+    auto renderer = sim::Renderer::Create(scene.value());
+    ASSERT_TRUE(renderer.ok()) << renderer.status().ToString();
+    FakeFeed feed;
+    feed.renderer = renderer.value().get();
+    feed.truth = truth_.get();
+    feed.natural_threshold_us = internal::NaturalThresholdUs(scene.value());
+    CameraSettings settings;
+    settings.width = scene.value().rig.camera.width;
+    settings.height = scene.value().rig.camera.height;
+    settings.format = PixelFormat::kBgr8;
+    auto configured = rig.camera->Configure(settings);
+    ASSERT_TRUE(configured.ok()) << configured.status().ToString();
+    ArvFakeCamera* fake =
+        arv_fake_device_get_fake_camera(ARV_FAKE_DEVICE(arv_camera_get_device(aravis->arv_camera())));
+    arv_fake_camera_set_fill_pattern(fake, &FakeFeed::Callback, &feed);
+    fake_feed_ = &feed;
+
+    ScanOptions o = Options();
+    o.steps = kAravisSteps;
+    o.timing = Timing::kFreeRunning;
+    // Check each frame written against the fill it came from: its true window inside one laser state.
+    int checked = 0;
+    o.on_frame = [&](const CapturedFrame& c) {
+      const auto fill = feed.Nearest(c.frame->ExposureEndUs(), 15'000);
+      EXPECT_TRUE(fill.has_value()) << "step " << c.step << ": no fill of the fake camera near this frame";
+      if (fill) {
+        const int64_t start = fill->end_us - fill->exposure_us;
+        EXPECT_EQ(fill->exposure_us, c.laser == bundle::LaserState::kNatural ? 20000 : 2000) << "step " << c.step;
+        EXPECT_TRUE(truth_->LaserSwitches(start, fill->end_us).empty())
+            << "step " << c.step << " " << bundle::LaserStateName(c.laser) << " exposed across a laser switch";
+        double left = 0, right = 0;
+        truth_->LaserFractions(start, fill->end_us, &left, &right);
+        EXPECT_EQ(left, c.laser == bundle::LaserState::kLeft ? 1.0 : 0.0) << "step " << c.step;
+        EXPECT_EQ(right, c.laser == bundle::LaserState::kRight ? 1.0 : 0.0) << "step " << c.step;
+        EXPECT_NEAR(truth_->TableAngleAt(start), c.table_angle_rad, 1e-9) << "step " << c.step;
+        EXPECT_NEAR(truth_->TableAngleAt(fill->end_us), c.table_angle_rad, 1e-9) << "step " << c.step;
+        ++checked;
+      }
+      if (fault) fault(c, fake);
+      return Status::Ok();
+    };
+    auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, nullptr);
+    if (fault_thread_.joinable()) fault_thread_.join();
+    arv_fake_camera_set_fill_pattern(fake, nullptr, nullptr);
+    fake_feed_ = nullptr;
+    ASSERT_TRUE(summary.ok()) << summary.status().ToString();
+    std::printf("aravis fake: %s\n", summary.value().Summary().c_str());
+    EXPECT_EQ(summary.value().timing, Timing::kFreeRunning);
+    EXPECT_EQ(summary.value().frames_used, kAravisSteps * 4);
+    EXPECT_EQ(checked, kAravisSteps * 4);
+    EXPECT_EQ(feed.bad_fills, 0);
+    outcome->summary = summary.value();
+    outcome->counters = aravis->counters();
+    rig.camera.reset();
+    rig.board.reset();
+    CheckBundleAndCloud(dir_ / "b", kAravisSteps);
+  }
+
+  FakeFeed* fake_feed_ = nullptr;
+  std::thread fault_thread_;
+};
+
+TEST_F(CaptureHilAravisTest, FreeRunningOverTheMockedBusEndsInACloudOnTheSurface) {
+  Outcome outcome;
+  Scan(nullptr, &outcome);
+  EXPECT_EQ(outcome.counters.dropped, 0u);
+}
+
+// Faults in the Aravis scan, each ending in a complete bundle with every frame checked against the truth:
+//  * a dropped frame: the fake camera fills one frame that never reaches the host (a frame id gap, as a frame
+//    lost on the link); the state it would have served is taken from a later frame;
+//  * a lost buffer: for 50 ms the fake's Width register says more than the buffers hold, so Aravis completes
+//    buffers with an error status (as with missing packets): the backend drops them;
+//  * a stall: the host takes no frame for 500 ms, the stream's buffers run out (frames lost) and those
+//    waiting are stale: judged by their timestamps, none is used for a state it did not see;
+//  * a lost USB packet to the board (the client re-sends).
+TEST_F(CaptureHilAravisTest, DroppedFrameLostBufferStallAndLostPacketEndComplete) {
+  bool dropped = false, lost = false, stalled = false, packet = false;
+  ArvBuffer* never_delivered = nullptr;
+  Outcome outcome;
+  Scan(
+      [&](const CapturedFrame& c, ArvFakeCamera* fake) {
+        if (c.step == 1 && !packet) {
+          packet = true;
+          usb_->DropNextOut();
+        }
+        if (c.step == 2 && c.laser == bundle::LaserState::kRight && !dropped) {
+          dropped = true;
+          // The camera exposes and sends a frame the host never gets: the next frame's id skips one.
+          never_delivered = arv_buffer_new(arv_fake_camera_get_payload(fake), nullptr);
+          fake_feed_->ignore = never_delivered;
+          arv_fake_camera_fill_buffer(fake, never_delivered, nullptr);
+        }
+        if (c.step == 4 && c.laser == bundle::LaserState::kLeft && !lost) {
+          lost = true;
+          guint32 width = 0;
+          arv_fake_camera_read_register(fake, ARV_FAKE_CAMERA_REGISTER_WIDTH, &width);
+          arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_WIDTH, width + 64);
+          fault_thread_ = std::thread([fake, width] {
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            arv_fake_camera_write_register(fake, ARV_FAKE_CAMERA_REGISTER_WIDTH, width);
+          });
+        }
+        if (c.step == 6 && c.laser == bundle::LaserState::kOff && !stalled) {
+          stalled = true;
+          std::this_thread::sleep_for(std::chrono::milliseconds(500));  // < the board's 2 s laser timeout
+        }
+      },
+      &outcome);
+  if (never_delivered != nullptr) g_object_unref(never_delivered);
+  EXPECT_TRUE(dropped && lost && stalled && packet);
+  std::printf("aravis counters: %llu frames, %llu dropped, %llu failed buffers\n",
+              static_cast<unsigned long long>(outcome.counters.frames),
+              static_cast<unsigned long long>(outcome.counters.dropped),
+              static_cast<unsigned long long>(outcome.counters.failed));
+  EXPECT_GE(outcome.summary.frames_dropped, 1) << "the frame id gap was not seen";
+  EXPECT_GE(outcome.counters.failed, 1u) << "no buffer completed with an error status";
+  EXPECT_GE(outcome.counters.dropped, 2u);
+  EXPECT_EQ(usb_->counters().dropped, 1);
 }
 #endif  // ROTOSCAN_TEST_ARAVIS
 

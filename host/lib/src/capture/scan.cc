@@ -62,6 +62,7 @@ struct Run {
   // Every frame the camera delivers goes through here (ids, period).
   void Count(const Frame& f) {
     ++summary.frames_captured;
+    progress.AdvanceSecondary();  // the bar's frames/s: every frame the camera delivers, used or not
     if (last_frame_id && f.frame_id > *last_frame_id + 1) {
       summary.frames_dropped += static_cast<int>(f.frame_id - *last_frame_id - 1);
     }
@@ -552,6 +553,7 @@ Result<ScanSummary> RunScan(Board& board, Camera& camera, Clock& clock, const st
   writer_options.overwrite = options.overwrite;
   ROTOSCAN_ASSIGN_OR_RETURN(auto writer, bundle::BundleWriter::Create(out, header, writer_options));
   ProgressScope scope(progress, "scan", static_cast<uint64_t>(options.steps));
+  scope.SetUnits(options.lasers ? "steps" : "views", "frames");
   Run run{board, camera, clock, options, *writer, scope, summary, header.table_step_rad, {}, {}, {}, 0.0, 0};
   for (int s = 0; s < options.steps; ++s) {
     if (run.StepDone(s)) {

@@ -7,13 +7,17 @@
 // step pulses and trigger edges at their exact times (device time + the fixed offset from the clock).
 //
 // Faults for tests, as backend options: unplug_at_ms / unplug_for_ms (the USB cable pulled at a virtual
-// time), lose_in_every (drop every n-th chunk the board sends: a lost IN packet).
+// time), lose_in_every (drop every n-th chunk the board sends: a lost IN packet). pins_file=PATH writes the
+// laser pins' levels ("left 0\nright 0\n") when the board is let go, for a test that runs `rotoscan scan`
+// as another process (Ctrl-C leaves the lasers off).
 #include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <mutex>
 
 #include "backend_options.h"
+#include "rotoscan/core/file.h"
+#include "rotoscan/core/logging.h"
 #include "client_board.h"
 #include "rotoscan/capture/factory.h"
 #include "rotoscan/capture/virtual_rig.h"
@@ -95,10 +99,25 @@ class SimTransport : public device::Transport {
 class SimBoardHolder : public Board {
  public:
   SimBoardHolder(std::unique_ptr<internal::ClientBoard> board, std::shared_ptr<VirtualClock> clock, int listener,
-                 std::unique_ptr<internal::SimRigTruth> truth)
-      : board_(std::move(board)), clock_(std::move(clock)), listener_(listener), truth_(std::move(truth)) {}
+                 std::unique_ptr<internal::SimRigTruth> truth, std::string pins_file)
+      : board_(std::move(board)),
+        clock_(std::move(clock)),
+        listener_(listener),
+        truth_(std::move(truth)),
+        pins_file_(std::move(pins_file)) {}
   ~SimBoardHolder() override {
     board_.reset();
+    if (!pins_file_.empty()) {
+      // The simulated pins as the board is let go (option pins_file): what a process that ended (Ctrl-C
+      // included) left the lasers at, for a test outside that process.
+      const int64_t now = clock_->NowUs();
+      const std::string text = "left " + std::to_string(truth_->LaserAt(0, now) ? 1 : 0) + "\nright " +
+                               std::to_string(truth_->LaserAt(1, now) ? 1 : 0) + "\n";
+      const Status written = WriteFileAtomically(pins_file_, text);
+      if (!written.ok()) {
+        ROTOSCAN_LOG(kWarning) << "sim: " << written.message();
+      }
+    }
     clock_->RemoveListener(listener_);
     g_sim_open = false;
   }
@@ -128,6 +147,7 @@ class SimBoardHolder : public Board {
   std::shared_ptr<VirtualClock> clock_;
   int listener_;
   std::unique_ptr<internal::SimRigTruth> truth_;
+  std::string pins_file_;
 };
 
 Result<std::unique_ptr<Board>> OpenSimBoard(const std::string& argument, OpenContext* context) {
@@ -135,7 +155,7 @@ Result<std::unique_ptr<Board>> OpenSimBoard(const std::string& argument, OpenCon
   ROTOSCAN_ASSIGN_OR_RETURN(const auto options,
                             internal::BackendOptions::Parse(context->options, "sim",
                                                             {"steps_per_rev", "unplug_at_ms", "unplug_for_ms",
-                                                             "lose_in_every", "camera_delay_us"}));
+                                                             "lose_in_every", "camera_delay_us", "pins_file"}));
   ROTOSCAN_ASSIGN_OR_RETURN(const double steps_per_rev, options.Number("steps_per_rev", 19200));
   ROTOSCAN_ASSIGN_OR_RETURN(const double unplug_at_ms, options.Number("unplug_at_ms", -1));
   ROTOSCAN_ASSIGN_OR_RETURN(const double unplug_for_ms, options.Number("unplug_for_ms", 0));
@@ -196,7 +216,8 @@ Result<std::unique_ptr<Board>> OpenSimBoard(const std::string& argument, OpenCon
   release.armed = false;
   auto truth = std::make_unique<internal::SimRigTruth>(offset, 2.0 * 3.14159265358979323846 / steps_per_rev);
   return std::unique_ptr<Board>(
-      std::make_unique<SimBoardHolder>(std::move(board).value(), clock, listener, std::move(truth)));
+      std::make_unique<SimBoardHolder>(std::move(board).value(), clock, listener, std::move(truth),
+                                       options.Text("pins_file", "")));
 }
 
 }  // namespace

@@ -30,6 +30,9 @@ void ProgressBar::Begin(const std::string& label, uint64_t total) {
   label_ = label;
   total_ = total;
   done_ = 0;
+  unit_.clear();
+  secondary_unit_.clear();
+  secondary_done_ = 0;
   active_ = true;
   start_ = std::chrono::steady_clock::now();
   last_draw_ = start_ - std::chrono::seconds(1);
@@ -45,6 +48,14 @@ void ProgressBar::Advance(uint64_t n) {
   Draw(false);
 }
 
+void ProgressBar::SetUnits(const std::string& unit, const std::string& secondary_unit) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  unit_ = unit;
+  secondary_unit_ = secondary_unit;
+}
+
+void ProgressBar::AdvanceSecondary(uint64_t n) { secondary_done_.fetch_add(n); }
+
 void ProgressBar::End() {
   std::lock_guard<std::mutex> lock(mutex_);
   if (!active_) return;
@@ -55,27 +66,46 @@ void ProgressBar::End() {
 std::string ProgressBar::FormatLine(double elapsed_s) const {
   constexpr int kWidth = 30;
   const uint64_t done = done_.load();
+  const uint64_t secondary = secondary_done_.load();
   std::string line = label_;
-  char buffer[128];
+  char buffer[160];
   const double rate = elapsed_s > 0 ? static_cast<double>(done) / elapsed_s : 0.0;
+  const double secondary_rate = elapsed_s > 0 ? static_cast<double>(secondary) / elapsed_s : 0.0;
+  const std::string unit = unit_.empty() ? "" : " " + unit_;
+  // "  7.5 steps/s  30.0 frames/s" (or "  7.5/s" without units): the rates while the work runs.
+  auto rates = [&] {
+    std::snprintf(buffer, sizeof(buffer), "  %.1f%s/s", rate, unit.c_str());
+    std::string text = buffer;
+    if (!secondary_unit_.empty()) {
+      std::snprintf(buffer, sizeof(buffer), "  %.1f %s/s", secondary_rate, secondary_unit_.c_str());
+      text += buffer;
+    }
+    return text;
+  };
   if (total_ > 0) {
     const double fraction = std::min(1.0, static_cast<double>(done) / static_cast<double>(total_));
     const int filled = static_cast<int>(std::lround(fraction * kWidth));
     line += "  [" + std::string(filled, '#') + std::string(kWidth - filled, '.') + "]";
-    std::snprintf(buffer, sizeof(buffer), " %3d%% %llu/%llu", static_cast<int>(fraction * 100.0),
-                  static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_));
+    std::snprintf(buffer, sizeof(buffer), " %3d%% %llu/%llu%s", static_cast<int>(fraction * 100.0),
+                  static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_), unit.c_str());
     line += buffer;
     if (rate > 0 && done < total_) {
-      std::snprintf(buffer, sizeof(buffer), "  %.1f/s  eta %.0fs", rate,
-                    static_cast<double>(total_ - done) / rate);
+      line += rates();
+      std::snprintf(buffer, sizeof(buffer), "  eta %.0fs", static_cast<double>(total_ - done) / rate);
       line += buffer;
     } else {
+      if (!secondary_unit_.empty()) {
+        std::snprintf(buffer, sizeof(buffer), "  %llu %s", static_cast<unsigned long long>(secondary),
+                      secondary_unit_.c_str());
+        line += buffer;
+      }
       std::snprintf(buffer, sizeof(buffer), "  %.1fs", elapsed_s);
       line += buffer;
     }
   } else {
-    std::snprintf(buffer, sizeof(buffer), "  %llu  %.1f/s", static_cast<unsigned long long>(done), rate);
+    std::snprintf(buffer, sizeof(buffer), "  %llu%s", static_cast<unsigned long long>(done), unit.c_str());
     line += buffer;
+    line += rates();
   }
   return line;
 }

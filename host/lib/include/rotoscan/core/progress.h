@@ -26,6 +26,14 @@ class Progress {
   virtual void End() = 0;
   // True when the user asked to stop; long work checks it and returns kCancelled.
   virtual bool Cancelled() const { return false; }
+  // Optional, after Begin(): names the phase's units (e.g. "steps") and a second count kept beside them
+  // (e.g. "frames", of which a step takes several), advanced by AdvanceSecondary(); a bar then shows both
+  // rates. The time left still follows the units. Both reset at the next Begin().
+  virtual void SetUnits(const std::string& unit, const std::string& secondary_unit) {
+    (void)unit;
+    (void)secondary_unit;
+  }
+  virtual void AdvanceSecondary(uint64_t n = 1) { (void)n; }
 };
 
 // Begin() on construction and End() on scope exit; tolerates a null Progress.
@@ -41,6 +49,12 @@ class ProgressScope {
   ProgressScope& operator=(const ProgressScope&) = delete;
   void Advance(uint64_t n = 1) {
     if (progress_ != nullptr) progress_->Advance(n);
+  }
+  void SetUnits(const std::string& unit, const std::string& secondary_unit) {
+    if (progress_ != nullptr) progress_->SetUnits(unit, secondary_unit);
+  }
+  void AdvanceSecondary(uint64_t n = 1) {
+    if (progress_ != nullptr) progress_->AdvanceSecondary(n);
   }
   bool Cancelled() const { return progress_ != nullptr && progress_->Cancelled(); }
 
@@ -58,14 +72,19 @@ class ProgressBar : public Progress {
   void Begin(const std::string& label, uint64_t total) override;
   void Advance(uint64_t n = 1) override;
   void End() override;
+  void SetUnits(const std::string& unit, const std::string& secondary_unit) override;
+  void AdvanceSecondary(uint64_t n = 1) override;
   // True once the user interrupted the program (InterruptRequested()).
   bool Cancelled() const override;
 
   // Whether this bar draws anything (decided at construction).
   bool enabled() const { return enabled_; }
   uint64_t done() const { return done_.load(); }
+  uint64_t secondary_done() const { return secondary_done_.load(); }
 
-  // The line that would be drawn, e.g. "render  [#########.........]  45% 540/1200  38.2/s  eta 17s".
+  // The line that would be drawn, e.g. "render  [#########.........]  45% 540/1200  38.2/s  eta 17s", or
+  // with units (SetUnits("steps", "frames")):
+  // "scan  [#########.........]  45% 540/1200 steps  7.5 steps/s  30.0 frames/s  eta 88s".
   std::string FormatLine(double elapsed_s) const;
 
  private:
@@ -77,6 +96,9 @@ class ProgressBar : public Progress {
   std::string label_;
   uint64_t total_ = 0;
   std::atomic<uint64_t> done_{0};
+  std::string unit_;            // empty: no unit shown
+  std::string secondary_unit_;  // empty: no second count
+  std::atomic<uint64_t> secondary_done_{0};
   bool active_ = false;
   std::chrono::steady_clock::time_point start_;
   std::chrono::steady_clock::time_point last_draw_;

@@ -31,6 +31,7 @@
 #include <array>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core/mat.hpp>
@@ -54,6 +55,15 @@ struct StepFrames {
   cv::Mat off;
   cv::Mat natural;
   std::string name;  // for messages, e.g. "step 12"
+  // Puts `image` where the step's frame of that laser state goes (the live sources of a scan use it).
+  void Set(bundle::LaserState state, cv::Mat image) {
+    switch (state) {
+      case bundle::LaserState::kLeft: laser[0] = std::move(image); break;
+      case bundle::LaserState::kRight: laser[1] = std::move(image); break;
+      case bundle::LaserState::kOff: off = std::move(image); break;
+      case bundle::LaserState::kNatural: natural = std::move(image); break;
+    }
+  }
 };
 
 // Where the frames come from: a bundle on disk, or memory in tests. Load() is called from several threads.
