@@ -65,21 +65,26 @@ Result<PointCloud> FilterCloud(const PointCloud& cloud, const FilterOptions& opt
     const internal::CellIndex grid(cloud, all, options.radius_mm);
     const auto k = static_cast<size_t>(options.neighbours);
     const float r = static_cast<float>(options.radius_mm);
+    // The k nearest other points within the radius of point i, nearest first: (squared distance, index).
+    auto nearest = [&](size_t i, std::vector<std::pair<float, uint32_t>>* near) {
+      const Eigen::Vector3f& p = cloud.points[i].position_in_table;
+      near->clear();
+      grid.ForEachNear(p, [&](uint32_t j) {
+        if (j == i) return;
+        const float e = (cloud.points[j].position_in_table - p).squaredNorm();
+        if (e <= r * r) near->emplace_back(e, j);
+      });
+      const size_t found = std::min(k, near->size());
+      std::partial_sort(near->begin(), near->begin() + static_cast<std::ptrdiff_t>(found), near->end());
+      near->resize(found);
+    };
     std::vector<float> mean(cloud.size());
     ParallelFor(cloud.size(), threads, [&](size_t begin, size_t end) {
-      std::vector<float> d2;
+      std::vector<std::pair<float, uint32_t>> near;
       for (size_t i = begin; i < end; ++i) {
-        const Eigen::Vector3f& p = cloud.points[i].position_in_table;
-        d2.clear();
-        grid.ForEachNear(p, [&](uint32_t j) {
-          if (j == i) return;
-          const float e = (cloud.points[j].position_in_table - p).squaredNorm();
-          if (e <= r * r) d2.push_back(e);
-        });
-        const size_t found = std::min(k, d2.size());
-        std::partial_sort(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(found), d2.end());
-        float sum = static_cast<float>(k - found) * r;
-        for (size_t m = 0; m < found; ++m) sum += std::sqrt(d2[m]);
+        nearest(i, &near);
+        float sum = static_cast<float>(k - near.size()) * r;
+        for (const auto& [e, j] : near) sum += std::sqrt(e);
         mean[i] = sum / static_cast<float>(k);
       }
     });
@@ -93,20 +98,13 @@ Result<PointCloud> FilterCloud(const PointCloud& cloud, const FilterOptions& opt
     // within the radius, and its mean distance at most local_ratio x the median of theirs.
     auto as_sparse_as_around = [&](size_t i) {
       if (options.local_ratio <= 0) return false;
-      const Eigen::Vector3f& p = cloud.points[i].position_in_table;
       std::vector<std::pair<float, uint32_t>> near;
-      grid.ForEachNear(p, [&](uint32_t j) {
-        if (j == i) return;
-        const float e = (cloud.points[j].position_in_table - p).squaredNorm();
-        if (e <= r * r) near.emplace_back(e, j);
-      });
+      nearest(i, &near);
       if (2 * near.size() < k) return false;
-      const size_t found = std::min(k, near.size());
-      std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(found), near.end());
-      std::vector<float> theirs(found);
-      for (size_t n = 0; n < found; ++n) theirs[n] = mean[near[n].second];
-      std::nth_element(theirs.begin(), theirs.begin() + static_cast<std::ptrdiff_t>(found / 2), theirs.end());
-      return mean[i] <= options.local_ratio * theirs[found / 2];
+      std::vector<float> theirs(near.size());
+      for (size_t n = 0; n < near.size(); ++n) theirs[n] = mean[near[n].second];
+      std::nth_element(theirs.begin(), theirs.begin() + static_cast<std::ptrdiff_t>(theirs.size() / 2), theirs.end());
+      return mean[i] <= options.local_ratio * theirs[theirs.size() / 2];
     };
     for (size_t i = 0; i < cloud.size(); ++i) {
       if (mean[i] <= s.outlier_threshold_mm) {

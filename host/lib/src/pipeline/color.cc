@@ -197,6 +197,11 @@ double LineSpacing(const cloud::PointCloud& cloud, const open3d::geometry::KDTre
   return spacing[spacing.size() / 2];
 }
 
+// A point's own normal (from the scan grid), unit length, or zero when it has none.
+Eigen::Vector3f OwnNormal(const cloud::CloudPoint& p) {
+  return p.normal.squaredNorm() > 0.5f ? Eigen::Vector3f(p.normal.normalized()) : Eigen::Vector3f::Zero();
+}
+
 // Shading normals by PCA over `radius` (file comment in color.h), on the side of each point's own normal;
 // a point with fewer than 6 neighbours, or without a normal, keeps its own (zero: no normal).
 std::vector<Eigen::Vector3f> PcaNormals(const cloud::PointCloud& cloud, double radius, int threads,
@@ -212,8 +217,7 @@ std::vector<Eigen::Vector3f> PcaNormals(const cloud::PointCloud& cloud, double r
       const size_t first = next.fetch_add(kChunk);
       if (first >= cloud.size()) return;
       for (size_t i = first; i < std::min(cloud.size(), first + kChunk); ++i) {
-        const Eigen::Vector3f own = cloud.points[i].normal;
-        normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
+        normals[i] = OwnNormal(cloud.points[i]);
         if (normals[i].squaredNorm() == 0) continue;
         tree.SearchRadius(positions[i], radius, found, d2);
         if (found.size() < 6) continue;
@@ -313,10 +317,7 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   }
   if (normals.empty()) {
     normals.resize(cloud->size());
-    for (size_t i = 0; i < cloud->size(); ++i) {
-      const Eigen::Vector3f& own = cloud->points[i].normal;
-      normals[i] = own.squaredNorm() > 0.5f ? Eigen::Vector3f(own.normalized()) : Eigen::Vector3f::Zero();
-    }
+    for (size_t i = 0; i < cloud->size(); ++i) normals[i] = OwnNormal(cloud->points[i]);
   }
 
   // A lamp known before the views are read (given or calibrated) gives each view a shadow map.
@@ -436,14 +437,10 @@ Status ColorFromViews(const geometry::Rig& rig, const StepSource& source, const 
   // searched over directions and strengths, then refined by a pattern search.
   Eigen::Vector3f lamp = Eigen::Vector3f::Zero();
   std::vector<char> shadow(obs.size(), 0);
-  if (options.lamp_in_cam) {
-    lamp = options.lamp_in_cam->cast<float>();
+  if (known_lamp) {
+    lamp = *known_lamp;
     summary->shading_removed = options.remove_shading;
-    summary->lamp_source = "given";
-  } else if (options.use_calibrated_lamp && rig.lamp_in_cam) {
-    lamp = rig.lamp_in_cam->cast<float>();
-    summary->shading_removed = options.remove_shading;
-    summary->lamp_source = "calibrated";
+    summary->lamp_source = options.lamp_in_cam ? "given" : "calibrated";
   } else if (options.remove_shading) {
     summary->lamp_source = "estimated";
     std::vector<size_t> sample;
