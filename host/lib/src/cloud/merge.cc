@@ -64,8 +64,7 @@ LaserDisagreement MeasureDisagreement(const PointCloud& cloud, const std::vector
     const double color = ((q.color[0] + q.color[1] + q.color[2]) - (p.color[0] + p.color[1] + p.color[2])) / 3.0;
     color_sum += color;
     color_abs_sum += std::abs(color);
-    const Eigen::Vector3f delta =
-        cloud.points[static_cast<size_t>(nearest)].position_in_table - p.position_in_table;
+    const Eigen::Vector3f delta = q.position_in_table - p.position_in_table;
     if (p.normal.squaredNorm() > 0.5f) {
       signed_distances.push_back(p.normal.normalized().dot(delta));
     } else {
