@@ -8,6 +8,8 @@
 #include <random>
 #include <sstream>
 
+#include <omp.h>
+
 #include <open3d/geometry/KDTreeFlann.h>
 #include <open3d/geometry/KDTreeSearchParam.h>
 #include <open3d/geometry/PointCloud.h>
@@ -58,9 +60,25 @@ Eigen::Isometry3d FromMatrix(const Eigen::Matrix4d& m) {
   return t;
 }
 
+// Open3D's ICP sums its normal equations over OpenMP threads in the order they finish, so the same clouds
+// gave alignments differing in the last bits from run to run, and `merge` wrote different files. Its ICP
+// runs on one thread (this thread's OpenMP setting, restored after): the merge is byte-reproducible, for
+// ~0.3 s more on the demo's pair.
+class OneOpenMpThread {
+ public:
+  OneOpenMpThread() : saved_(omp_get_max_threads()) { omp_set_num_threads(1); }
+  ~OneOpenMpThread() { omp_set_num_threads(saved_); }
+  OneOpenMpThread(const OneOpenMpThread&) = delete;
+  OneOpenMpThread& operator=(const OneOpenMpThread&) = delete;
+
+ private:
+  int saved_;
+};
+
 // Point-to-plane ICP through the listed correspondence distances (mm), `iterations` each.
 Eigen::Isometry3d Refine(const O3dCloud& source, const O3dCloud& target, Eigen::Isometry3d start,
                          std::initializer_list<double> distances, int iterations) {
+  const OneOpenMpThread one_thread;
   for (const double d : distances) {
     const reg::RegistrationResult r =
         reg::RegistrationICP(source, target, d, start.matrix(), reg::TransformationEstimationPointToPlane(),
@@ -96,6 +114,7 @@ double ResidualScale(const O3dCloud& source, const O3dCloud& target,
 // less than 1 %). `scale_mm` gets the last scale.
 Eigen::Isometry3d RefineRobust(const O3dCloud& source, const O3dCloud& target, Eigen::Isometry3d start,
                                double distance, double tukey_constant, double* scale_mm) {
+  const OneOpenMpThread one_thread;
   const open3d::geometry::KDTreeFlann tree(target);
   double scale = ResidualScale(source, target, tree, start, distance);
   for (int round = 0; round < 3 && scale > 0; ++round) {
