@@ -55,7 +55,8 @@
 // along-line smoothing moves a point by at most u, and not at all where saturation begins or ends
 // between neighbouring rows or where the profile is lopsided (its asymmetry over a quarter of W): there
 // the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
-// 1-2 px from their own centres).
+// 1-2 px from their own centres); but a saturation change at a point whose albedo was divided out is the
+// texture's (the laser-on frame saturates over the white cells only), and is smoothed (smooth.cc).
 //
 // Albedo inside the line (kFlagAlbedoEdge; issue 15's textured set: a white cylinder with a 3 mm checker
 // of 10 % albedo cells, lines 8-11 px wide, cells ~15 px). The reflection is the laser's profile times

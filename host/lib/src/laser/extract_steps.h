@@ -202,7 +202,7 @@ void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* points)
 int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* points);
 
 // After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
-// not at all where the profile changes (saturation begins or ends, or kFlagLopsided).
+// not at all where the profile changes (saturation begins or ends, but for kFlagAlbedoEdge; kFlagLopsided).
 void LimitSmoothing(const std::vector<float>& own, std::vector<LinePoint>* points);
 
 }  // namespace rotoscan::laser::detail
