@@ -38,25 +38,26 @@ int EnvInt(const char* name, int fallback) {
 
 // The object's rows of one set.
 struct ObjectRows {
-  int lit = 0;           // rows an object's line crosses
-  int found = 0;         // with a point within 3 px across of an object's true line
-  int over = 0;          // of those found, > 1 px across
+  int lit = 0;             // rows an object's line crosses
+  int found = 0;           // with a point within 3 px across of an object's true line
+  int over = 0;            // of those found, > 1 px across
   double sum_squared = 0;  // across, of the found ones within 1 px
   int within = 0;
   // Over 1 px by cause, each row once, first cause first.
   int glint = 0, albedo = 0, albedo_unflagged = 0, weak = 0, line_end = 0, rest = 0;
   // Not found by cause.
-  int on_other = 0;       // the row's point is on another line (the table's, a reflection)
+  int on_other = 0;  // the row's point is on another line (the table's, a reflection)
   int low_contrast = 0, too_narrow = 0, too_wide = 0, off_saturated = 0, stronger_rejected = 0, other = 0;
-  int low_contrast_steep = 0;            // of low_contrast: the true line steeper than 2 px per row
-  std::vector<int> low_contrast_peaks;   // of low_contrast: the difference's highest within 6 px
+  int low_contrast_steep = 0;           // of low_contrast: the true line steeper than 2 px per row
+  std::vector<int> low_contrast_peaks;  // of low_contrast: the difference's highest within 6 px
   int dumped = 0;
 };
 
 // The laser-off row changes inside [first, last] by more than the extractor's albedo gate asks (a looser
 // test than AlbedoEdgeInside's, to name the rows with texture under the line that were not divided).
 bool TextureUnder(const uint8_t* b, int cols, double centre, double half) {
-  const int first = std::max(0, static_cast<int>(centre - half)), last = std::min(cols - 1, static_cast<int>(centre + half));
+  const int first = std::max(0, static_cast<int>(centre - half)),
+            last = std::min(cols - 1, static_cast<int>(centre + half));
   int low = 255, high = 0;
   for (int i = first; i <= last; ++i) {
     low = std::min(low, int{b[i]});
@@ -65,9 +66,11 @@ bool TextureUnder(const uint8_t* b, int cols, double centre, double half) {
   return high >= 12 && 5 * high > 8 * low + 20;
 }
 
-void DumpRow(const char* what, const uint8_t* a, const uint8_t* b, int cols, int row, double truth, double found) {
+void DumpRow(const char* what, const uint8_t* a, const uint8_t* b, int cols, int row, double truth,
+             double found) {
   std::printf("    %s row %d truth %.2f found %.2f\n      d  :", what, row, truth, found);
-  const int lo = std::max(0, static_cast<int>(truth) - 14), hi = std::min(cols - 1, static_cast<int>(truth) + 14);
+  const int lo = std::max(0, static_cast<int>(truth) - 14),
+            hi = std::min(cols - 1, static_cast<int>(truth) + 14);
   for (int i = lo; i <= hi; ++i) std::printf(" %3d", std::max(0, int{a[i]} - int{b[i]}));
   std::printf("\n      on :");
   for (int i = lo; i <= hi; ++i) std::printf(" %3d", a[i]);
@@ -103,7 +106,8 @@ void ClassifyMissed(const uint8_t* a, const uint8_t* b, int cols, int threshold,
     ++out->stronger_rejected;
   } else {
     bool narrow = false;
-    for (int k = 0; k < count; ++k) narrow = narrow || candidates[k].width_num < o.min_width_px * candidates[k].width_den;
+    for (int k = 0; k < count; ++k)
+      narrow = narrow || candidates[k].width_num < o.min_width_px * candidates[k].width_den;
     ++(narrow ? out->too_narrow : out->too_wide);
   }
 }
@@ -161,7 +165,8 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
             }
             out.low_contrast_steep += slope > 2.0;
             int high = 0;
-            for (int i = std::max(0, static_cast<int>(columns[0]) - 6); i <= std::min(on.cols - 1, static_cast<int>(columns[0]) + 6); ++i)
+            for (int i = std::max(0, static_cast<int>(columns[0]) - 6);
+                 i <= std::min(on.cols - 1, static_cast<int>(columns[0]) + 6); ++i)
               high = std::max(high, int{a[i]} - int{b[i]});
             out.low_contrast_peaks.push_back(high);
           }
@@ -192,7 +197,8 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
           ++out.glint;
         } else if (p.flags & kFlagAlbedoEdge) {
           ++out.albedo;
-                    if (Dump("albedo") && out.dumped++ < 40) DumpRow("albedo divided", a, b, on.cols, row, nearest, p.column);
+          if (Dump("albedo") && out.dumped++ < 40)
+            DumpRow("albedo divided", a, b, on.cols, row, nearest, p.column);
         } else if (end) {
           ++out.line_end;
           if (Dump("end") && out.dumped++ < 40) DumpRow("line end", a, b, on.cols, row, nearest, p.column);
@@ -202,7 +208,8 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
           ++out.albedo_unflagged;
         } else {
           ++out.rest;
-          if (Dump("rest") && out.dumped++ < 40) DumpRow("strong unflagged", a, b, on.cols, row, nearest, p.column);
+          if (Dump("rest") && out.dumped++ < 40)
+            DumpRow("strong unflagged", a, b, on.cols, row, nearest, p.column);
         }
       }
     }
@@ -236,7 +243,8 @@ TEST(RealFramesTest, SmoothingGoesOnWhereTextureTogglesSaturation) {
     for (int x = 0; x < cols; ++x) {
       const double c = centre[static_cast<size_t>(r)];
       const double albedo = edge && ((x < c + offset) == bright_left) ? 0.9 : 0.09;
-      const double laser = 400.0 * std::max(0.0, speckle(rng)) * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
+      const double laser =
+          400.0 * std::max(0.0, speckle(rng)) * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
       lit.at<double>(0, x) = albedo * (laser + 60.0);
       ambient.at<double>(0, x) = albedo * 60.0;
     }
@@ -266,17 +274,19 @@ TEST(RealFramesTest, SmoothingGoesOnWhereTextureTogglesSaturation) {
     ASSERT_EQ(a.row, b.row);
     EXPECT_LE(std::abs(b.column - a.column), b.uncertainty_px + 1e-4f) << "row " << a.row;
     const bool saturated = (a.flags & kFlagSaturated) != 0;
-    const bool change = (i > 0 && ((raw->points[i - 1].flags & kFlagSaturated) != 0) != saturated) ||
-                        (i + 1 < raw->points.size() && ((raw->points[i + 1].flags & kFlagSaturated) != 0) != saturated);
+    const bool change =
+        (i > 0 && ((raw->points[i - 1].flags & kFlagSaturated) != 0) != saturated) ||
+        (i + 1 < raw->points.size() && ((raw->points[i + 1].flags & kFlagSaturated) != 0) != saturated);
     if (!change || !(a.flags & kFlagAlbedoEdge)) continue;
     ++toggles;
     const double truth = centre[static_cast<size_t>(a.row)];
     raw2 += (a.column - truth) * (a.column - truth);
     smooth2 += (b.column - truth) * (b.column - truth);
   }
-  const double raw_rms = std::sqrt(raw2 / std::max(1, toggles)), smooth_rms = std::sqrt(smooth2 / std::max(1, toggles));
-  std::printf("albedo-edge rows where saturation begins or ends: %d, rms %.3f px per row, %.3f px smoothed\n", toggles,
-              raw_rms, smooth_rms);
+  const double raw_rms = std::sqrt(raw2 / std::max(1, toggles)),
+               smooth_rms = std::sqrt(smooth2 / std::max(1, toggles));
+  std::printf("albedo-edge rows where saturation begins or ends: %d, rms %.3f px per row, %.3f px smoothed\n",
+              toggles, raw_rms, smooth_rms);
   ASSERT_GE(toggles, 20);
   EXPECT_LT(smooth_rms, 0.8 * raw_rms);
 }
@@ -288,23 +298,27 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
       const ObjectRows r = MeasureObjectRows(file, f_number, steps);
       ASSERT_GT(r.lit, 500) << file;
       const double lit = r.lit;
-      std::printf("%s f/%.1f, %d steps x 2 lasers, object rows %d: found %.2f %%, > 1 px across %d (%.2f %%), "
-                  "rms within 1 px %.3f px\n",
-                  file, f_number, steps, r.lit, 100.0 * r.found / lit, r.over, 100.0 * r.over / lit,
-                  std::sqrt(r.sum_squared / std::max(1, r.within)));
-      std::printf("  > 1 px by cause: glint %d, albedo divided (residual) %d, line end (rim/silhouette, <= 4 rows) "
-                  "%d, weak (peak < 30 DN) %d, texture under the line not divided %d, strong unflagged %d\n",
-                  r.glint, r.albedo, r.line_end, r.weak, r.albedo_unflagged, r.rest);
-      std::printf("  not found %d: point on another line %d, below threshold %d, candidates too narrow %d, too wide "
-                  "%d, off frame saturated %d, a much stronger one rejected %d, other %d\n",
-                  r.lit - r.found, r.on_other, r.low_contrast, r.too_narrow, r.too_wide, r.off_saturated,
-                  r.stronger_rejected, r.other);
+      std::printf(
+          "%s f/%.1f, %d steps x 2 lasers, object rows %d: found %.2f %%, > 1 px across %d (%.2f %%), "
+          "rms within 1 px %.3f px\n",
+          file, f_number, steps, r.lit, 100.0 * r.found / lit, r.over, 100.0 * r.over / lit,
+          std::sqrt(r.sum_squared / std::max(1, r.within)));
+      std::printf(
+          "  > 1 px by cause: glint %d, albedo divided (residual) %d, line end (rim/silhouette, <= 4 rows) "
+          "%d, weak (peak < 30 DN) %d, texture under the line not divided %d, strong unflagged %d\n",
+          r.glint, r.albedo, r.line_end, r.weak, r.albedo_unflagged, r.rest);
+      std::printf(
+          "  not found %d: point on another line %d, below threshold %d, candidates too narrow %d, too wide "
+          "%d, off frame saturated %d, a much stronger one rejected %d, other %d\n",
+          r.lit - r.found, r.on_other, r.low_contrast, r.too_narrow, r.too_wide, r.off_saturated,
+          r.stronger_rejected, r.other);
       if (!r.low_contrast_peaks.empty()) {
         std::vector<int> peaks = r.low_contrast_peaks;
         std::sort(peaks.begin(), peaks.end());
-        std::printf("  below threshold: %d steeper than 2 px per row; the difference's highest within 6 px of the "
-                    "truth: median %d, max %d DN\n",
-                    r.low_contrast_steep, peaks[peaks.size() / 2], peaks.back());
+        std::printf(
+            "  below threshold: %d steeper than 2 px per row; the difference's highest within 6 px of the "
+            "truth: median %d, max %d DN\n",
+            r.low_contrast_steep, peaks[peaks.size() / 2], peaks.back());
       }
     }
   }
