@@ -50,6 +50,12 @@ constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
 constexpr double kAlbedoBlurPx = 2.0;
 constexpr int kAlbedoMaxWindow = 256;
+// The division's residual (px, about two standard errors), added to a divided point's uncertainty in
+// place of the texture term (ScoreAlbedoDivision): on issue 15's textured set (3 steps x 2 lasers, f/4)
+// the divided rows' per-row error was 0.67 px RMS against ~0.45 px for plain rows of the same set, i.e.
+// ~0.5 px of the division's own, and it did not grow with the albedo's contrast (high / low 1.5 to 12:
+// 0.43-0.47 px smoothed) nor with the size of the correction (0-0.75 px: 0.45, 1.5-2.25 px: 0.50).
+constexpr double kAlbedoResidualPx = 1.0;
 // Glints (FlagGlints, design notes "Glints"): a saturated row is overexposed when the run above 0.15 of
 // its peak is under kGlintFootRatio times its half-maximum extent (a Gaussian clipped at a fifth of its
 // height: 1.23; at its height: 1.66); a point is a glint when at least kGlintShare of the rows within
@@ -190,6 +196,9 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
 // (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
+// ScorePoints' last step: a point whose albedo was divided out (kFlagAlbedoEdge) has no texture term but
+// kAlbedoResidualPx in its uncertainty, and its quality lowered to match.
+void ScoreAlbedoDivision(std::vector<LinePoint>* points);
 
 // After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows at
 // most 2 apart, no jump over max_jump_px per row) falls to 1 / (kLineEndRows + 1), 2 / ... of its value:
