@@ -46,6 +46,8 @@
 // (kSpeckleTerm2); and a lopsided profile (texture across the line, a glint's lobe, an edge) shows as the
 // distance between the centre of mass and the middle of the half-maximum extent, which enters whole.
 // u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2), computed for all of a frame's points after the row loop
+// (a point whose albedo was divided out has the division's residual in place of the texture term, larger
+// where the line is narrower than the frame's median: a dark cell cuts it; ScoreAlbedoDivision)
 // (ScorePoints: its divisions and roots then overlap instead of stalling each row). The quality is
 // divided by 1 + u^2, so that the points of lowest quality are those with the largest expected errors
 // (RenderedLineTest.WebcamQuality...), and that of the 8 points at either end of a stretch of line falls

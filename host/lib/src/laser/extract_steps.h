@@ -54,7 +54,10 @@ constexpr int kAlbedoMaxWindow = 256;
 // place of the texture term (ScoreAlbedoDivision): on issue 15's textured set (3 steps x 2 lasers, f/4)
 // the divided rows' per-row error was 0.67 px RMS against ~0.45 px for plain rows of the same set, i.e.
 // ~0.5 px of the division's own, and it did not grow with the albedo's contrast (high / low 1.5 to 12:
-// 0.43-0.47 px smoothed) nor with the size of the correction (0-0.75 px: 0.45, 1.5-2.25 px: 0.50).
+// 0.43-0.47 px smoothed) nor with the size of the correction (0-0.75 px: 0.45, 1.5-2.25 px: 0.50), but
+// with how narrow the difference is (a dark cell cuts the line): over both webcam sets, 8 steps, divided
+// rows 4-8 px wide 0.49-0.60 px, 8-12 px wide 0.26-0.30 px; so it is scaled by the frame's median width
+// over the point's (when over 1).
 constexpr double kAlbedoResidualPx = 1.0;
 // Glints (FlagGlints, design notes "Glints"): a saturated row is overexposed when the run above 0.15 of
 // its peak is under kGlintFootRatio times its half-maximum extent (a Gaussian clipped at a fifth of its

@@ -260,12 +260,25 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
 }
 
 void ScoreAlbedoDivision(std::vector<LinePoint>* points) {
+  // The line's usual width: the median of the frame's points.
+  thread_local std::vector<float> widths;
+  widths.clear();
+  bool any = false;
+  for (const LinePoint& p : *points) {
+    widths.push_back(p.width);
+    any = any || (p.flags & kFlagAlbedoEdge) != 0;
+  }
+  if (!any) return;
+  std::nth_element(widths.begin(), widths.begin() + static_cast<std::ptrdiff_t>(widths.size() / 2), widths.end());
+  const double usual = widths[widths.size() / 2];
   for (LinePoint& p : *points) {
     if (!(p.flags & kFlagAlbedoEdge)) continue;
-    // The uncertainty before (its steep-line growth kept) and after the division's residual is added;
+    // The uncertainty before (its steep-line growth kept) and after the division's residual is added,
+    // larger where the difference is narrower than the line's usual width (a dark cell cuts the line);
     // the quality falls as ScorePoints' 1 / (1 + u^2) would have it.
     const double u = p.uncertainty_px;
-    const double with = std::hypot(u, kAlbedoResidualPx);
+    const double residual = kAlbedoResidualPx * std::max(1.0, usual / std::max(1.0, static_cast<double>(p.width)));
+    const double with = std::hypot(u, residual);
     p.uncertainty_px = static_cast<float>(with);
     p.quality = static_cast<float>(p.quality * (1.0 + u * u) / (1.0 + with * with));
   }
