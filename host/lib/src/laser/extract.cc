@@ -65,7 +65,7 @@
 // the albedo, so an albedo step inside the line pulls the centre of mass towards the bright side, by up to
 // a quarter of the width (±3 px measured). The laser-off frame shows the albedo through the same optics;
 // where the laser-off row over the centre-of-mass run (widened by 3 px each side) changes sharply (an edge:
-// its steepest change over 4 px holds half its range; highest > 1.6 x lowest + 4 DN, lowest >= 4 DN,
+// its steepest change over 4 px holds half its range; highest > 1.6 x lowest + 4 DN, lowest >= 3 DN,
 // highest >= 12 DN; at least 3 px above and 3 below the middle of the range, so that a feature narrower
 // than the red channel resolves, or a small highlight of the lamp, is left alone), the centre
 // is the centre of mass (same 0.15 level) of the difference divided by the laser-off row blurred by a

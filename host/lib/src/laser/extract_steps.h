@@ -44,7 +44,11 @@ constexpr uint8_t kFlagLopsided = 0x80;
 // kAlbedoBlurPx (the red channel's resolution after demosaicing and 4:2:0 chroma: measured, extract.cc)
 // before the difference is divided by it, over a window of at most kAlbedoMaxWindow pixels.
 constexpr int kAlbedoMinOffDn = 12;
-constexpr int kAlbedoMinLowDn = 4;
+// The dark level may be as low as the division's floor (3 DN, AlbedoNormalisedCentre): the webcam's dark
+// cells read 3-6 DN in the red channel (black level, JPEG), and with 4 DN the rows on them were left
+// undivided (issue 15, textured set, 3 steps x 2 lasers: object rows over 1 px across 65 -> 54 at f/4,
+// 71 -> 54 at f/2.4; glossy and Spot unchanged). Lower (1-2 DN) divides by the floor, not the albedo.
+constexpr int kAlbedoMinLowDn = 3;
 constexpr int kAlbedoEdgeSpanPx = 4;
 constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
