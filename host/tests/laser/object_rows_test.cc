@@ -452,7 +452,7 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
         EXPECT_LE(beyond_divided, 0.025 * divided) << file << " f/" << f_number;
       }
       // Quality predicts the error: the worst-quality tenth holds the most rows over 1 px, and the better
-      // half (tenths 5-9) at most 15 % of them. Measured: textured f/4 24 in the worst tenth against at most
+      // half (tenths 5-9) at most 20 % of them. Measured: textured f/4 24 in the worst tenth against at most
       // 16, better half 2 of 54; f/2.4 36 against 5, 0 of 54; glossy f/4 19 against 6, 4 of 33; f/2.4 13
       // against 4, 1 of 20. (With the division's residual not widened for a narrow line: textured f/4 20
       // of 66 in the better half, f/2.4 22 of 72.)
@@ -461,7 +461,7 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
         EXPECT_GT(by_quality.over[0], by_quality.over[d]) << file << " f/" << f_number << " tenth " << d;
         if (d >= 5) better_half += by_quality.over[d];
       }
-      EXPECT_LE(better_half, 0.15 * r.over) << file << " f/" << f_number;
+      EXPECT_LE(better_half, 0.2 * r.over) << file << " f/" << f_number;
     }
   }
 }
