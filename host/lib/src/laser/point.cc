@@ -260,15 +260,13 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
 }
 
 void ScoreAlbedoDivision(std::vector<LinePoint>* points) {
+  // Most frames have no such point: nothing more to do (one pass over the flags).
+  if (std::none_of(points->begin(), points->end(), [](const LinePoint& p) { return (p.flags & kFlagAlbedoEdge) != 0; }))
+    return;
   // The line's usual width: the median of the frame's points.
   thread_local std::vector<float> widths;
   widths.clear();
-  bool any = false;
-  for (const LinePoint& p : *points) {
-    widths.push_back(p.width);
-    any = any || (p.flags & kFlagAlbedoEdge) != 0;
-  }
-  if (!any) return;
+  for (const LinePoint& p : *points) widths.push_back(p.width);
   std::nth_element(widths.begin(), widths.begin() + static_cast<std::ptrdiff_t>(widths.size() / 2), widths.end());
   const double usual = widths[widths.size() / 2];
   for (LinePoint& p : *points) {
