@@ -44,7 +44,7 @@ struct ObjectRows {
   double sum_squared = 0;  // across, of the found ones within 1 px
   int within = 0;
   // Over 1 px by cause, each row once, first cause first.
-  int glint = 0, albedo = 0, albedo_unflagged = 0, weak = 0, line_end = 0, rest = 0;
+  int glint = 0, albedo = 0, albedo_unflagged = 0, weak = 0, line_end = 0, steep = 0, rest = 0;
   // Not found by cause.
   int on_other = 0;  // the row's point is on another line (the table's, a reflection)
   int low_contrast = 0, too_narrow = 0, too_wide = 0, off_saturated = 0, stronger_rejected = 0, other = 0;
@@ -201,6 +201,15 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
         // A line's end: the object's truth stops within 4 rows (a rim, a silhouette, a shadow).
         bool end = false;
         for (int dr = -4; dr <= 4 && !end; ++dr) end = object_by_row.count(row + dr) == 0;
+        // A steep stretch: the true line moves more than 2 px per row here (its row error is the slope's).
+        bool steep = false;
+        for (int dr : {-1, 1}) {
+          const auto n = object_by_row.find(row + dr);
+          if (n == object_by_row.end()) continue;
+          double move = 1e9;
+          for (double c : n->second) move = std::min(move, std::abs(c - nearest));
+          steep = steep || move > 2.0;
+        }
         const double half = 0.5 * std::max(4.0f, p.width) + 3.0;
         if (p.flags & kFlagGlint) {
           ++out.glint;
@@ -211,6 +220,8 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
         } else if (end) {
           ++out.line_end;
           if (Dump("end") && out.dumped++ < 40) DumpRow("line end", a, b, on.cols, row, nearest, p.column);
+        } else if (steep) {
+          ++out.steep;
         } else if (p.peak < 30) {
           ++out.weak;
         } else if (TextureUnder(b, on.cols, nearest, half)) {
@@ -412,8 +423,9 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
           std::sqrt(r.sum_squared / std::max(1, r.within)));
       std::printf(
           "  > 1 px by cause: glint %d, albedo divided (residual) %d, line end (rim/silhouette, <= 4 rows) "
-          "%d, weak (peak < 30 DN) %d, texture under the line not divided %d, strong unflagged %d\n",
-          r.glint, r.albedo, r.line_end, r.weak, r.albedo_unflagged, r.rest);
+          "%d, steep (the true line > 2 px per row) %d, weak (peak < 30 DN) %d, texture under the line not "
+          "divided %d, strong unflagged %d\n",
+          r.glint, r.albedo, r.line_end, r.steep, r.weak, r.albedo_unflagged, r.rest);
       std::printf(
           "  not found %d: point on another line %d, below threshold %d, candidates too narrow %d, too wide "
           "%d, off frame saturated %d, a much stronger one rejected %d, other %d\n",
