@@ -46,6 +46,8 @@
 // (kSpeckleTerm2); and a lopsided profile (texture across the line, a glint's lobe, an edge) shows as the
 // distance between the centre of mass and the middle of the half-maximum extent, which enters whole.
 // u = 2 sqrt(noise^2 + speckle^2 + asymmetry^2), computed for all of a frame's points after the row loop
+// (a point whose albedo was divided out has the division's residual in place of the texture term, larger
+// where the line is narrower than the frame's median: a dark cell cuts it; ScoreAlbedoDivision)
 // (ScorePoints: its divisions and roots then overlap instead of stalling each row). The quality is
 // divided by 1 + u^2, so that the points of lowest quality are those with the largest expected errors
 // (RenderedLineTest.WebcamQuality...), and that of the 8 points at either end of a stretch of line falls
@@ -55,14 +57,15 @@
 // along-line smoothing moves a point by at most u, and not at all where saturation begins or ends
 // between neighbouring rows or where the profile is lopsided (its asymmetry over a quarter of W): there
 // the row's own estimate stays (issue 15: on a real bust the smoothing had moved a fifth of the rows by
-// 1-2 px from their own centres).
+// 1-2 px from their own centres); but a saturation change at a point whose albedo was divided out is the
+// texture's (the laser-on frame saturates over the white cells only), and is smoothed (smooth.cc).
 //
 // Albedo inside the line (kFlagAlbedoEdge; issue 15's textured set: a white cylinder with a 3 mm checker
 // of 10 % albedo cells, lines 8-11 px wide, cells ~15 px). The reflection is the laser's profile times
 // the albedo, so an albedo step inside the line pulls the centre of mass towards the bright side, by up to
 // a quarter of the width (±3 px measured). The laser-off frame shows the albedo through the same optics;
 // where the laser-off row over the centre-of-mass run (widened by 3 px each side) changes sharply (an edge:
-// its steepest change over 4 px holds half its range; highest > 1.6 x lowest + 4 DN, lowest >= 4 DN,
+// its steepest change over 4 px holds half its range; highest > 1.6 x lowest + 4 DN, lowest >= 3 DN,
 // highest >= 12 DN; at least 3 px above and 3 below the middle of the range, so that a feature narrower
 // than the red channel resolves, or a small highlight of the lamp, is left alone), the centre
 // is the centre of mass (same 0.15 level) of the difference divided by the laser-off row blurred by a

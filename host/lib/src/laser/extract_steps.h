@@ -44,12 +44,25 @@ constexpr uint8_t kFlagLopsided = 0x80;
 // kAlbedoBlurPx (the red channel's resolution after demosaicing and 4:2:0 chroma: measured, extract.cc)
 // before the difference is divided by it, over a window of at most kAlbedoMaxWindow pixels.
 constexpr int kAlbedoMinOffDn = 12;
-constexpr int kAlbedoMinLowDn = 4;
+// The dark level may be as low as the division's floor (3 DN, AlbedoNormalisedCentre): the webcam's dark
+// cells read 3-6 DN in the red channel (black level, JPEG), and with 4 DN the rows on them were left
+// undivided (issue 15, textured set, 3 steps x 2 lasers: object rows over 1 px across 65 -> 54 at f/4,
+// 71 -> 54 at f/2.4; glossy and Spot unchanged). Lower (1-2 DN) divides by the floor, not the albedo.
+constexpr int kAlbedoMinLowDn = 3;
 constexpr int kAlbedoEdgeSpanPx = 4;
 constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
 constexpr double kAlbedoBlurPx = 2.0;
 constexpr int kAlbedoMaxWindow = 256;
+// The division's residual (px, about two standard errors), added to a divided point's uncertainty in
+// place of the texture term (ScoreAlbedoDivision): on issue 15's textured set (3 steps x 2 lasers, f/4)
+// the divided rows' per-row error was 0.67 px RMS against ~0.45 px for plain rows of the same set, i.e.
+// ~0.5 px of the division's own, and it did not grow with the albedo's contrast (high / low 1.5 to 12:
+// 0.43-0.47 px smoothed) nor with the size of the correction (0-0.75 px: 0.45, 1.5-2.25 px: 0.50), but
+// with how narrow the difference is (a dark cell cuts the line): over both webcam sets, 8 steps, divided
+// rows 4-8 px wide 0.49-0.60 px, 8-12 px wide 0.26-0.30 px; so it is scaled by the frame's median width
+// over the point's (when over 1).
+constexpr double kAlbedoResidualPx = 1.0;
 // Glints (FlagGlints, design notes "Glints"): a saturated row is overexposed when the run above 0.15 of
 // its peak is under kGlintFootRatio times its half-maximum extent (a Gaussian clipped at a fifth of its
 // height: 1.23; at its height: 1.66); a point is a glint when at least kGlintShare of the rows within
@@ -190,6 +203,9 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
 // (cleared at the end).
 void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<LinePoint>* points);
+// ScorePoints' last step: a point whose albedo was divided out (kFlagAlbedoEdge) has no texture term but
+// kAlbedoResidualPx in its uncertainty, and its quality lowered to match.
+void ScoreAlbedoDivision(std::vector<LinePoint>* points);
 
 // After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows at
 // most 2 apart, no jump over max_jump_px per row) falls to 1 / (kLineEndRows + 1), 2 / ... of its value:
@@ -202,7 +218,7 @@ void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* points)
 int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* points);
 
 // After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
-// not at all where the profile changes (saturation begins or ends, or kFlagLopsided).
+// not at all where the profile changes (saturation begins or ends, but for kFlagAlbedoEdge; kFlagLopsided).
 void LimitSmoothing(const std::vector<float>& own, std::vector<LinePoint>* points);
 
 }  // namespace rotoscan::laser::detail

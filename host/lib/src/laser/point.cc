@@ -187,8 +187,10 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   // Texture across the line (ScorePoints): the laser-off row either side of the centre's pixel.
   const int middle = static_cast<int>(column + 0.5);
   const SidesSum sides = SumsAround(b, c.com_first, middle, c.com_last, cols);
-  terms->left = sides.left;
-  terms->right = sides.right;
+  // Where the albedo was divided out, its pull is gone: no texture term (ScorePoints), but the division's
+  // own residual (ScoreAlbedoDivision).
+  terms->left = albedo_edge ? 0 : sides.left;
+  terms->right = albedo_edge ? 0 : sides.right;
   terms->left_n = std::max(1, middle - c.com_first);
   terms->right_n = std::max(1, c.com_last - middle);
   // Field by field: a LinePoint built on the stack and copied whole was read back before its flag byte's
@@ -253,6 +255,30 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
     p[i].quality = static_cast<float>(std::clamp(quality, 0.0, 1.0)) / grow;
     p[i].uncertainty_px = static_cast<float>(uncertainty) * std::sqrt(grow);
     if (std::abs(asymmetry) > 0.25 * width) p[i].flags = flags | kFlagLopsided;
+  }
+  ScoreAlbedoDivision(points);
+}
+
+void ScoreAlbedoDivision(std::vector<LinePoint>* points) {
+  // Most frames have no such point: nothing more to do (one pass over the flags).
+  if (std::none_of(points->begin(), points->end(), [](const LinePoint& p) { return (p.flags & kFlagAlbedoEdge) != 0; }))
+    return;
+  // The line's usual width: the median of the frame's points.
+  thread_local std::vector<float> widths;
+  widths.clear();
+  for (const LinePoint& p : *points) widths.push_back(p.width);
+  std::nth_element(widths.begin(), widths.begin() + static_cast<std::ptrdiff_t>(widths.size() / 2), widths.end());
+  const double usual = widths[widths.size() / 2];
+  for (LinePoint& p : *points) {
+    if (!(p.flags & kFlagAlbedoEdge)) continue;
+    // The uncertainty before (its steep-line growth kept) and after the division's residual is added,
+    // larger where the difference is narrower than the line's usual width (a dark cell cuts the line);
+    // the quality falls as ScorePoints' 1 / (1 + u^2) would have it.
+    const double u = p.uncertainty_px;
+    const double residual = kAlbedoResidualPx * std::max(1.0, usual / std::max(1.0, static_cast<double>(p.width)));
+    const double with = std::hypot(u, residual);
+    p.uncertainty_px = static_cast<float>(with);
+    p.quality = static_cast<float>(p.quality * (1.0 + u * u) / (1.0 + with * with));
   }
 }
 

@@ -345,13 +345,21 @@ void LimitSmoothing(const std::vector<float>& own_columns, std::vector<LinePoint
   const size_t n = points.size();
   // The smoothing's limits: a point moves by at most its uncertainty, and keeps its own estimate where
   // the profile changes (saturation begins or ends, or the profile is lopsided: texture, an edge).
+  // Saturation that begins or ends at a point whose albedo was divided out (kFlagAlbedoEdge) is the
+  // texture's: the laser-on frame saturates over the bright cells only, and the division has taken the
+  // albedo out of the profile, so the smoothing applies there, within the uncertainty (issue 15's
+  // textured set, 3 steps x 2 lasers, f/4: the object's rows over 1 px across 85 -> 61; f/2.4 69 -> 53;
+  // RealFramesTest.SmoothingGoesOnWhereTextureTogglesSaturation).
   for (size_t i = 0; i < n; ++i) {
     LinePoint& p = points[i];
     const float own = own_columns[i];
     const bool saturated = (p.flags & kFlagSaturated) != 0;
+    const bool texture = (p.flags & kFlagAlbedoEdge) != 0;
     const bool change =
-        (i > 0 && points[i - 1].row + 1 == p.row && ((points[i - 1].flags & kFlagSaturated) != 0) != saturated) ||
-        (i + 1 < n && points[i + 1].row == p.row + 1 && ((points[i + 1].flags & kFlagSaturated) != 0) != saturated) ||
+        (!texture && i > 0 && points[i - 1].row + 1 == p.row &&
+         ((points[i - 1].flags & kFlagSaturated) != 0) != saturated) ||
+        (!texture && i + 1 < n && points[i + 1].row == p.row + 1 &&
+         ((points[i + 1].flags & kFlagSaturated) != 0) != saturated) ||
         (p.flags & kFlagLopsided) != 0;
     if (change) {
       p.column = own;
