@@ -10,6 +10,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -53,6 +54,7 @@ class ClientBoard : public Board {
   Result<std::optional<uint32_t>> ResumeProgram() override;
   Status KeepAlive() override;
   int lost_events() const override { return client_->stats().lost_events; }
+  std::string ProgramDiagnosis() override;
 
   device::Client& client() { return *client_; }
   const device::ClockFit& clock_fit() const { return fit_; }
@@ -77,6 +79,9 @@ class ClientBoard : public Board {
   uint8_t lasers_ = 0;
   bool program_running_ = false;
   double program_start_device_us_ = 0.0;  // device time of StartProgram, less a margin
+  int64_t started_host_us_ = 0;             // host clock when the host last started a program
+  std::optional<uint32_t> last_trigger_seq_;  // the last TRIGGER_EVENT heard
+  std::string last_stop_;                     // the last program stop the board reported (laser safety, abort)
   bool unreachable_ = false;  // Shutdown() found the board gone: later ones return at once
 };
 

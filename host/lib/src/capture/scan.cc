@@ -300,6 +300,8 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
     return written;
   };
   int64_t last_alive = run.clock.NowUs();
+  int resumes = 0;                     // quiet spells that asked the board to resume
+  std::string last_resume = "none";  // and what it answered
   while (true) {
     ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
     if (!done && run.clock.NowUs() - last_alive > kKeepAliveUs) {
@@ -336,12 +338,23 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
     if (!done && run.clock.NowUs() - quiet_since > wait_after_done) {
       const int64_t now = run.clock.NowUs();
       if (now - last_frame_us > kNoFrameUs) {
+        // Name what the board says it did: a program the board stopped, or one that never raised an edge.
+        std::string board = run.board.ProgramDiagnosis();
+        if (!board.empty()) board = "; " + board;
         return TimeoutError(std::string(last_edge_us > last_frame_us ? "trigger edges but no frame"
                                                                      : "no trigger edge and no frame") +
                             " for " + std::to_string(kNoFrameUs / 1'000'000) +
-                            " s: is the camera's trigger input wired to the board?");
+                            " s: is the camera's trigger input wired to the board? (program of " +
+                            std::to_string(step_count - first_step) + " steps from step " +
+                            std::to_string(first_step * stride + step_offset) + ", " + std::to_string(edges.size()) +
+                            " edges and " + std::to_string(frames.size()) + " frames heard, last keep-alive " +
+                            std::to_string((now - last_alive) / 1000) + " ms ago, " + std::to_string(resumes) +
+                            " restarts asked, last: " + last_resume + board + ")");
       }
       ROTOSCAN_ASSIGN_OR_RETURN(const auto resumed, run.board.ResumeProgram());
+      ++resumes;
+      last_resume = resumed ? "running at step " + std::to_string(*resumed) : std::string("finished");
+      ROTOSCAN_LOG(kDebug) << "triggered run quiet for " << (now - quiet_since) / 1000 << " ms: program " << last_resume;
       if (!resumed) done = true;
       quiet_since = run.clock.NowUs();
     }
