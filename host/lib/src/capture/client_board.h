@@ -5,8 +5,9 @@
 //
 // The clock fit: at open, from `clock_pings` back-to-back PINGs, offset only (over a few milliseconds a
 // crystal's drift is unobservable: fitting it there would turn ping jitter into a drift of percents). Every
-// KeepAlive() PING of a scan adds a sample, and the fit is redone from all of them; once they span
-// `drift_after_us`, with the drift too (when clock_fit.fit_drift), so a long scan's edges stay on time.
+// KeepAlive() PING of a scan adds a sample, and the fit is redone from all of them; once the samples the fit
+// keeps (the fastest) span `drift_after_us`, with the drift too (when clock_fit.fit_drift), so a long scan's
+// edges stay on time.
 #pragma once
 
 #include <memory>
@@ -25,7 +26,7 @@ struct ClientBoardOptions {
   device::MotionConfig motion;
   int clock_pings = 16;
   device::ClockFitOptions clock_fit;
-  int64_t drift_after_us = 10'000'000;  // fit the drift once the samples span this long
+  int64_t drift_after_us = 10'000'000;  // fit the drift once the samples used span this long
   size_t max_samples = 4096;           // the oldest keep-alive samples are dropped beyond this
 };
 
