@@ -189,41 +189,23 @@ TEST_F(CaptureHilEmuTest, LostCorruptedDuplicatedPacketsAndAShortUnplugStillEndC
 }
 
 TEST_F(CaptureHilEmuTest, UnplugBeyondTheReconnectWindowFailsClearlyLasersOffAndResumes) {
-  int64_t unplugged_at = 0;
-  {
-    HilRig rig = testing::OpenHilRig(scene_path_, truth_.get());
-    ASSERT_NE(rig.camera, nullptr);
-    on_frame_ = [&](const CapturedFrame& c) {
-      if (c.step == 6 && unplugged_at == 0) {
-        unplugged_at = MonotonicNowUs();
-        usb_->Unplug();
-      }
-    };
-    auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", Options(), nullptr);
-    testing::ExpectReconnectWindowError(summary.status(), 1000);
-  }
-  on_frame_ = nullptr;
-  EXPECT_TRUE(fs::exists(dir_ / "b.partial"));
-  EXPECT_FALSE(fs::exists(dir_ / "b"));
-  // The host could not reach the image: its laser safety (the `usb` backend's default laser timeout) turned
-  // the laser pins off after that long without a command.
-  testing::ExpectLaserSafetyAfterUnplug(*truth_, unplugged_at);
-
-  std::string error;
-  usb_->WithBoardLocked([&] { ASSERT_TRUE(board_.Reenumerate(&error)) << error; });
-  usb_->Replug();
-  HilRig rig = testing::OpenHilRig(scene_path_, truth_.get());
-  ASSERT_NE(rig.camera, nullptr);
-  ScanOptions o = Options();
-  o.resume = true;
-  auto summary = RunScan(*rig.board, *rig.camera, *rig.context.clock, dir_ / "b", o, nullptr);
-  ASSERT_TRUE(summary.ok()) << summary.status().ToString() << " / " << EmuError();
-  std::printf("resumed: %s\n", summary.value().Summary().c_str());
-  EXPECT_GE(summary.value().steps_resumed, 5);
-  EXPECT_LT(summary.value().steps_resumed, kSteps);
-  rig.board.reset();
-  CheckHilBundleAndCloud(dir_ / "b", scene_path_, kSteps);
-  EXPECT_EQ(EmuError(), "");
+  // The image is re-enumerated before the re-plug (its USB stack starts over, as after a real re-plug).
+  testing::UnplugBeyondRig u;
+  u.dir = dir_;
+  u.scene_path = scene_path_;
+  u.steps = kSteps;
+  u.truth = truth_.get();
+  u.on_frame = &on_frame_;
+  u.open = [this] { return testing::OpenHilRig(scene_path_, truth_.get()); };
+  u.options = [this] { return Options(); };
+  u.unplug = [this] { usb_->Unplug(); };
+  u.replug = [this] {
+    std::string error;
+    usb_->WithBoardLocked([&] { ASSERT_TRUE(board_.Reenumerate(&error)) << error; });
+    usb_->Replug();
+  };
+  u.context = [this] { return EmuError(); };
+  testing::RunUnplugBeyondTheReconnectWindow(u);
 }
 
 }  // namespace

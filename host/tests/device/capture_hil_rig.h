@@ -65,4 +65,25 @@ void ExpectReconnectWindowError(const Status& status, int reconnect_ms);
 // on `truth` that both lasers are off and that they went off no later than 200 ms after the timeout.
 void ExpectLaserSafetyAfterUnplug(RigTruth& truth, int64_t unplugged_at);
 
+// Issue 13's unplug beyond the reconnect window, the same for every board behind the mocked bus: the board
+// is unplugged (`unplug`) at the scan's step 6 and stays away; the scan fails naming the reconnect window
+// (1000 ms), a partial bundle stays and the board's laser safety turns the lasers off on the pins; once the
+// board is back (`replug`) the scan resumes (`open` opens the rig each time, `options` gives the scan's
+// options) to a complete bundle with no step lost or taken twice and a cloud on the true sphere.
+// `*on_frame` is the fixture's fault hook (ScanOptions from `options` call it); `context` (may be null)
+// adds to failure messages and, at the end, must be empty (the emulator's own error).
+struct UnplugBeyondRig {
+  std::filesystem::path dir;  // the bundle is dir / "b"
+  std::filesystem::path scene_path;
+  int steps = 0;
+  RigTruth* truth = nullptr;
+  std::function<void(const CapturedFrame&)>* on_frame = nullptr;
+  std::function<HilRig()> open;
+  std::function<ScanOptions()> options;
+  std::function<void()> unplug;
+  std::function<void()> replug;
+  std::function<std::string()> context;
+};
+void RunUnplugBeyondTheReconnectWindow(const UnplugBeyondRig& rig);
+
 }  // namespace rotoscan::capture::testing

@@ -1,5 +1,6 @@
 #include "rotoscan/device/clock_sync.h"
 
+#include <cmath>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -49,6 +50,27 @@ TEST(ClockSyncTest, SlowRoundTripsAreLeftOut) {
   auto biased = FitClock(samples, all);
   ASSERT_TRUE(biased.ok());
   EXPECT_GT(std::abs(biased->DeviceFromHost(5e6) - (3e6 + (1 + 25e-6) * 5e6)), 500.0);  // the test can fail
+}
+
+// Issue 13: on a loaded host the fastest pings can all be the back-to-back ones taken at open, though the
+// samples span seconds. The kept samples' span (ClockFit::span_us) says so; a drift fitted from them is
+// far off (ClientBoard::KeepAlive then fits the offset alone).
+TEST(ClockSyncTest, ABurstOfFastPingsSpansTooLittleForADrift) {
+  std::vector<PingSample> samples;
+  // 16 pings 1 ms apart, 300 us round trips, the board reading its clock early or late in each.
+  for (int i = 0; i < 16; ++i) samples.push_back(Sample(1'000'000LL + i * 1'000LL, 300, i % 2 == 0 ? 0.2 : 0.8));
+  // Then keep-alives every 0.5 s for 10 s, every one slowed by the load (3 ms round trips).
+  for (int i = 1; i <= 20; ++i) samples.push_back(Sample(1'000'000LL + i * 500'000LL, 3000));
+  auto fit = FitClock(samples);  // keeps the fastest 25 %: 9 of the burst
+  ASSERT_TRUE(fit.ok());
+  EXPECT_EQ(fit->samples_used, 9);
+  EXPECT_LE(fit->span_us, 15'000);  // within the burst
+  EXPECT_GT(std::abs(fit->drift - 25e-6), 1e-3);  // the hazard: 1 ms off after 1 s (the test can fail)
+  ClockFitOptions all;
+  all.keep_fraction = 1.0;
+  auto wide = FitClock(samples, all);
+  ASSERT_TRUE(wide.ok());
+  EXPECT_EQ(wide->span_us, 10'001'350);  // the first ping's midpoint (1'000'150) to the last one's
 }
 
 TEST(ClockSyncTest, OffsetOnlyFit) {

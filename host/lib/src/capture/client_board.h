@@ -5,11 +5,13 @@
 //
 // The clock fit: at open, from `clock_pings` back-to-back PINGs, offset only (over a few milliseconds a
 // crystal's drift is unobservable: fitting it there would turn ping jitter into a drift of percents). Every
-// KeepAlive() PING of a scan adds a sample, and the fit is redone from all of them; once they span
-// `drift_after_us`, with the drift too (when clock_fit.fit_drift), so a long scan's edges stay on time.
+// KeepAlive() PING of a scan adds a sample, and the fit is redone from all of them; once the samples the fit
+// keeps (the fastest) span `drift_after_us`, with the drift too (when clock_fit.fit_drift), so a long scan's
+// edges stay on time.
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -24,7 +26,7 @@ struct ClientBoardOptions {
   device::MotionConfig motion;
   int clock_pings = 16;
   device::ClockFitOptions clock_fit;
-  int64_t drift_after_us = 10'000'000;  // fit the drift once the samples span this long
+  int64_t drift_after_us = 10'000'000;  // fit the drift once the samples used span this long
   size_t max_samples = 4096;           // the oldest keep-alive samples are dropped beyond this
 };
 
@@ -53,6 +55,7 @@ class ClientBoard : public Board {
   Result<std::optional<uint32_t>> ResumeProgram() override;
   Status KeepAlive() override;
   int lost_events() const override { return client_->stats().lost_events; }
+  std::string ProgramDiagnosis() override;
 
   device::Client& client() { return *client_; }
   const device::ClockFit& clock_fit() const { return fit_; }
@@ -77,6 +80,9 @@ class ClientBoard : public Board {
   uint8_t lasers_ = 0;
   bool program_running_ = false;
   double program_start_device_us_ = 0.0;  // device time of StartProgram, less a margin
+  int64_t started_host_us_ = 0;             // host clock when the host last started a program
+  std::optional<uint32_t> last_trigger_seq_;  // the last TRIGGER_EVENT heard
+  std::string last_stop_;                     // the last program stop the board reported (laser safety, abort)
   bool unreachable_ = false;  // Shutdown() found the board gone: later ones return at once
 };
 

@@ -14,6 +14,7 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr int64_t kKeepAliveUs = 400'000;  // our board's laser safety stops a program after 2 s of silence
 constexpr int64_t kScheduleMarginUs = 200;  // after a frame's predicted end, before the next change
+constexpr int64_t kLaserSafetyUs = 2'000'000;  // our board's default MotionConfig::laser_timeout_ms
 constexpr int64_t kNoFrameUs = 10'000'000;  // triggered: no frame for this long (moves included) is an error
 using bundle::LaserState;
 
@@ -300,12 +301,17 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
     return written;
   };
   int64_t last_alive = run.clock.NowUs();
+  auto keep_alive = [&]() -> Status {
+    if (done || run.clock.NowUs() - last_alive <= kKeepAliveUs) return Status::Ok();
+    ROTOSCAN_RETURN_IF_ERROR(run.board.KeepAlive());
+    last_alive = run.clock.NowUs();
+    return Status::Ok();
+  };
+  int resumes = 0;                     // quiet spells that asked the board to resume
+  std::string last_resume = "none";  // and what it answered
   while (true) {
     ROTOSCAN_RETURN_IF_ERROR(run.CheckCancel());
-    if (!done && run.clock.NowUs() - last_alive > kKeepAliveUs) {
-      ROTOSCAN_RETURN_IF_ERROR(run.board.KeepAlive());
-      last_alive = run.clock.NowUs();
-    }
+    ROTOSCAN_RETURN_IF_ERROR(keep_alive());
     while (true) {
       bool program_done = false;
       ROTOSCAN_ASSIGN_OR_RETURN(auto edge, run.board.NextTrigger(0, &program_done));
@@ -321,10 +327,26 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
     if (frame) {
       run.Count(*frame);
       frames.push_back(std::move(*frame));
-      quiet_since = last_frame_us = run.clock.NowUs();
       // Two frames later the edges of a frame and of the next have surely arrived: tie it now, so the
       // bundle, the progress and live processing follow the scan.
-      while (tied + 2 < frames.size()) ROTOSCAN_RETURN_IF_ERROR(tie(tied++, false));
+      const int64_t busy_from = run.clock.NowUs();
+      while (tied + 2 < frames.size()) {
+        ROTOSCAN_RETURN_IF_ERROR(tie(tied++, false));
+        ROTOSCAN_RETURN_IF_ERROR(keep_alive());
+      }
+      // The board's and the camera's silence is counted from here, once the host listens again: writing a
+      // frame (fsync on a slow or busy disk, on_frame) has taken tens of seconds on a loaded machine, and
+      // the frames and edges of that time are waiting, not missing. Counted from before the writing, such a
+      // stall ended the scan with "no trigger edge and no frame" (or, once the program was done, left its
+      // last frames unread and re-took them) while the board and camera had done their part.
+      const int64_t busy_us = run.clock.NowUs() - busy_from;
+      if (busy_us > kKeepAliveUs) {
+        ROTOSCAN_LOG(kWarning) << "writing frames took " << busy_us / 1000 << " ms (a slow or busy disk?)"
+                               << (busy_us > kLaserSafetyUs ? ": the board's laser safety may stop the program; "
+                                                              "it is resumed"
+                                                            : "");
+      }
+      quiet_since = last_frame_us = run.clock.NowUs();
     }
     const int expected = (step_count - first_step) * static_cast<int>(shots.size());
     if (done && (static_cast<int>(frames.size()) >= expected || run.clock.NowUs() - quiet_since > wait_after_done)) {
@@ -336,12 +358,23 @@ Result<std::vector<Shot>> TriggeredRun(Run& run, const std::vector<LaserState>& 
     if (!done && run.clock.NowUs() - quiet_since > wait_after_done) {
       const int64_t now = run.clock.NowUs();
       if (now - last_frame_us > kNoFrameUs) {
+        // Name what the board says it did: a program the board stopped, or one that never raised an edge.
+        std::string board = run.board.ProgramDiagnosis();
+        if (!board.empty()) board = "; " + board;
         return TimeoutError(std::string(last_edge_us > last_frame_us ? "trigger edges but no frame"
                                                                      : "no trigger edge and no frame") +
                             " for " + std::to_string(kNoFrameUs / 1'000'000) +
-                            " s: is the camera's trigger input wired to the board?");
+                            " s: is the camera's trigger input wired to the board? (program of " +
+                            std::to_string(step_count - first_step) + " steps from step " +
+                            std::to_string(first_step * stride + step_offset) + "; " + std::to_string(edges.size()) +
+                            " edges and " + std::to_string(frames.size()) + " frames heard; last keep-alive " +
+                            std::to_string((now - last_alive) / 1000) + " ms ago; " + std::to_string(resumes) +
+                            " restarts asked, the last answered: " + last_resume + board + ")");
       }
       ROTOSCAN_ASSIGN_OR_RETURN(const auto resumed, run.board.ResumeProgram());
+      ++resumes;
+      last_resume = resumed ? "running at step " + std::to_string(*resumed) : std::string("finished");
+      ROTOSCAN_LOG(kDebug) << "triggered run quiet for " << (now - quiet_since) / 1000 << " ms: program " << last_resume;
       if (!resumed) done = true;
       quiet_since = run.clock.NowUs();
     }

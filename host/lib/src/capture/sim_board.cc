@@ -140,6 +140,7 @@ class SimBoardHolder : public Board {
   Result<std::optional<uint32_t>> ResumeProgram() override { return board_->ResumeProgram(); }
   int lost_events() const override { return board_->lost_events(); }
   Status KeepAlive() override { return board_->KeepAlive(); }
+  std::string ProgramDiagnosis() override { return board_->ProgramDiagnosis(); }
   RigTruth* truth() override { return truth_.get(); }
 
  private:

@@ -78,6 +78,8 @@ Result<ClockFit> FitClock(const std::vector<PingSample>& samples, const ClockFit
   fit.samples_used = static_cast<int>(hs.size());
   fit.min_round_trip_us = sorted[0].host_receive_us - sorted[0].host_send_us;
   fit.residual_rms_us = std::sqrt(sq / n);
+  const auto [first, last] = std::minmax_element(hs.begin(), hs.end());
+  fit.span_us = std::llround(*last - *first);
   return fit;
 }
 

@@ -99,6 +99,9 @@ class Board {
   virtual Status KeepAlive() { return Status::Ok(); }
   // Lost trigger events seen so far (gaps in the board's counter).
   virtual int lost_events() const { return 0; }
+  // What the board says about its program, for an error when a triggered scan hears nothing: its state,
+  // next step, trigger count, laser safety, and the last stop it reported. Empty where it cannot say.
+  virtual std::string ProgramDiagnosis() { return {}; }
 
   // The simulated rig's truth (sim board only; null for real boards): what a virtual camera renders.
   virtual RigTruth* truth() { return nullptr; }

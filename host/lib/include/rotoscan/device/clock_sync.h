@@ -37,6 +37,9 @@ struct ClockFit {
   int samples_used = 0;
   int64_t min_round_trip_us = 0;
   double residual_rms_us = 0.0;
+  // Host time from the first to the last sample used: a drift is only as good as this span is long (the
+  // fastest pings may all come from one burst).
+  int64_t span_us = 0;
 
   double DeviceFromHost(double host_us) const { return offset_us + (1.0 + drift) * host_us; }
   double HostFromDevice(double device_us) const { return (device_us - offset_us) / (1.0 + drift); }
