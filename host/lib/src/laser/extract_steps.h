@@ -75,7 +75,7 @@ constexpr double kGlintQuality = 0.5;
 constexpr int kLineEndRows = 8;
 // RecentreSteepLines (steep.cc): a point is steep where its line's least-squares slope over the points
 // within kSteepFitRows rows either side (a stretch: rows at most 2 apart, at most kSteepMaxStepPx columns
-// per row; a parabola with 5 points or more) is at least kSteepSlope columns per row; its centre is the
+// per row; a parabola through at least kSteepMinPoints) is at least kSteepSlope columns per row; its centre is the
 // centre of mass across that curve of the difference above 0.15 of its peak, within kSteepAlongPx along
 // the line and the line's width (at least kSteepMinHalfPx) across it, kSteepIterations times, each around
 // the last centre. Chosen on the webcam test's 3 steps (glossy / textured, rows > 1 px across the line;
@@ -93,6 +93,11 @@ constexpr double kSteepMaxStepPx = 24.0;
 constexpr double kSteepAlongPx = 8.0;
 constexpr double kSteepMinHalfPx = 2.0;
 constexpr int kSteepIterations = 2;
+// ... and only where the stretch's points lie within kSteepMaxResidual (1 + L) px RMS of the fit along
+// their rows: rows whose centres merely lie near each other are no line (RealFramesTest's independent rows
+// jump by up to 40 px and gave 181 rows over 1 px without this test).
+constexpr double kSteepMaxResidual = 0.35;
+constexpr int kSteepMinPoints = 7;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 

@@ -53,15 +53,15 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     size_t lo = i, hi = i;
     while (lo > 0 && p[lo - 1].row >= p[i].row - kSteepFitRows && joined(lo - 1, lo)) --lo;
     while (hi + 1 < n && p[hi + 1].row <= p[i].row + kSteepFitRows && joined(hi, hi + 1)) ++hi;
-    if (hi - lo < 2) continue;  // too few rows for a direction
+    if (hi - lo + 1 < kSteepMinPoints) continue;  // too few rows for a direction and a test of it
     // The line's column against the row near the point: column = c0 + s dr + k dr^2 (dr = row - r0), by
-    // least squares through the stretch's points relative to the point; the curvature term only with
-    // at least 5 points (else a straight line: k = 0). The curvature matters: a straight model of a
+    // least squares through the stretch's points (at least kSteepMinPoints) relative to the point. The
+    // curvature matters: a straight model of a
     // curved line puts the centre of mass on the concave side by about k L^3 along^2 / 6.
     const int r0 = p[i].row;
     const double c0 = p[i].column;
     double m[3][4] = {};  // normal equations [A | b] for (offset, s, k)
-    const bool curved = hi - lo >= 4;
+    const bool curved = true;
     const int terms = curved ? 3 : 2;
     for (size_t k = lo; k <= hi; ++k) {
       const double dr = p[k].row - r0, dc = p[k].column - c0;
@@ -93,6 +93,18 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     const double s = x[1], curvature = x[2];
     if (std::abs(s) < kSteepSlope) continue;
     const double length = std::sqrt(1.0 + s * s);
+    // A line, not rows that merely lie near each other: the points' RMS distance along their rows from
+    // the fit (per degree of freedom) is at most kSteepMaxResidual (1 + L) px (a row's error is L times one
+// across the line).
+    double residual2 = 0;
+    for (size_t k = lo; k <= hi; ++k) {
+      const double dr = p[k].row - r0;
+      const double e = p[k].column - (c0 + x[0] + s * dr + curvature * dr * dr);
+      residual2 += e * e;
+    }
+    if (residual2 > kSteepMaxResidual * kSteepMaxResidual * (1.0 + length) * (1.0 + length) *
+                        static_cast<double>(hi - lo + 1 - terms))
+      continue;
     // Across the line, the row's width divided by L; the window is that width either side.
     const double half = std::max(kSteepMinHalfPx, p[i].width / length);
     const double level = kComLevelNum * static_cast<double>(p[i].peak) / kComScale;
@@ -127,7 +139,9 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
       t = sum_wt / sum_w;
     }
     if (!ok) continue;
-    moved[i] = static_cast<float>(c0 + t * length);
+    // As the smoothing (LimitSmoothing), the point moves by at most its own uncertainty along the row.
+    const double limit = p[i].uncertainty_px;
+    moved[i] = static_cast<float>(c0 + std::clamp(t * length, -limit, limit));
     ++count;
   }
   for (size_t i = 0; i < n; ++i) p[i].column = moved[i];
