@@ -39,6 +39,11 @@ int RunEvaluate(const EvaluateCommandOptions& o, const Context& context) {
         laser::EstimatorName(options.estimator), a->frames, a->truth_rows, a->extracted, a->matched,
         a->outliers, a->spurious, a->missed, a->mean_px(), a->max_abs, a->rms_px());
     *context.out << buffer;
+    // Across the line (pipeline/accuracy.h: the distance to the true line, which a steep line's row error
+    // overstates by its slope).
+    std::snprintf(buffer, sizeof(buffer), "across the line: %zu within 2 px, %zu further; rms=%.4f px\n",
+                  a->across_matched, a->across_outliers, a->across_rms_px());
+    *context.out << buffer;
     return kExitOk;
   }
   if (o.cloud.empty() || o.truth.empty()) {

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -97,7 +98,7 @@ void PrintCauses(const char* file, const std::vector<PointError>& points, size_t
               file, total, lit, 100.0 * total / lit, glint, albedo, steep, weak, rest, table, beyond_uncertainty);
 }
 
-std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracy* total,
+std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int steps, pipeline::LineAccuracyParts* total,
                                           int* glints, int* albedo_edges, int* missed_rows) {
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
   EXPECT_TRUE(scene.ok()) << scene.status().ToString();
@@ -113,7 +114,7 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
       const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
       Line line;
       EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
-      total->Add(pipeline::CompareWithTruth(line, truth, 1.0));
+      total->Add(pipeline::CompareWithTruthByPart(line, truth, 1.0));
       std::map<int, std::vector<double>> by_row;
       std::map<int, std::vector<const bundle::LinePoint*>> truth_by_row;
       for (const bundle::LinePoint& t : truth) {
@@ -146,15 +147,26 @@ std::vector<PointError> WebcamPointErrors(const std::string& scene_file, int ste
 TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
   std::vector<const char*> files = {"glossy-webcam.json", "textured-webcam.json"};
   for (const char* file : files) {
-    pipeline::LineAccuracy total;
+    pipeline::LineAccuracyParts parts;
     int glints = 0, albedo_edges = 0, missed_rows[2] = {0, 0};  // [on an object]
-    std::vector<PointError> points = WebcamPointErrors(file, 3, &total, &glints, &albedo_edges, missed_rows);
+    std::vector<PointError> points = WebcamPointErrors(file, 3, &parts, &glints, &albedo_edges, missed_rows);
     ASSERT_GT(points.size(), 1000u) << file;
-    const double lit = static_cast<double>(total.truth_rows);
-    std::printf("%s: lit rows %zu, found %.2f %%, > 1 px off %.3f %%, rms (within 1 px) %.3f px; across the "
-                "line: > 1 px off %.3f %%, rms %.3f px; flagged: glint %d, albedo edge %d\n",
-                file, total.truth_rows, 100.0 * (lit - total.missed) / lit, 100.0 * total.outliers / lit,
-                total.rms_px(), 100.0 * total.across_outliers / lit, total.across_rms_px(), glints, albedo_edges);
+    const pipeline::LineAccuracy& total = parts.all;
+    std::printf("%s: flagged: glint %d, albedo edge %d\n", file, glints, albedo_edges);
+    // The target is judged on all rows across the line (README, issue 15); the rest is information.
+    const std::pair<const char*, const pipeline::LineAccuracy*> split[] = {
+        {"all", &parts.all}, {"object", &parts.object}, {"table", &parts.table}};
+    for (const auto& [name, a] : split) {
+      const double lit = static_cast<double>(std::max<size_t>(1, a->truth_rows));
+      std::printf("  %-6s lit rows %zu, found %.2f %% | across the line: > 1 px off %.3f %%, rms %.3f px | per "
+                  "row: > 1 px off %.3f %%, rms (within 1 px) %.3f px\n",
+                  name, a->truth_rows, 100.0 * (lit - a->missed) / lit, 100.0 * a->across_outliers / lit,
+                  a->across_rms_px(), 100.0 * a->outliers / lit, a->rms_px());
+    }
+    EXPECT_EQ(parts.object.truth_rows + parts.table.truth_rows, total.truth_rows) << file;
+    EXPECT_EQ(parts.object.missed + parts.table.missed, total.missed) << file;
+    EXPECT_EQ(static_cast<size_t>(missed_rows[0]), parts.table.missed) << file;
+    EXPECT_EQ(static_cast<size_t>(missed_rows[1]), parts.object.missed) << file;
     PrintCauses(file, points, total.truth_rows);
     std::printf("  lit rows not found: %d on the table's line alone, %d with an object's line\n", missed_rows[0],
                 missed_rows[1]);
@@ -187,8 +199,9 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
     } else {
       // Textured: the worst tenth's errors are well above the better half's (measured on the tuned
       // preset with the noise-following threshold: clipped rms 1.03 against at most 0.55 px, over 1 px 101
-      // against at most 17 of 280), but not above every other tenth's: the second-worst (rms 4.25
-      // against 4.34, clipped 0.97 against 1.03) nearly ties with it, and a few
+      // against at most 17 of 280; with steep lines measured across themselves, steep.cc: 0.78 against
+      // at most 0.55, 44 against at most 18), but not above every other tenth's: the second-worst (rms 4.25
+      // against 4.34, clipped 0.97 against 1.03; then 0.77 against 0.78) nearly ties with it, and a few
       // gross errors at the cylinder's rim (a nearly horizontal line there, measured per row) sit in the
       // middle tenths (issue 15, open).
       for (int d = 5; d < 10; ++d) {

@@ -31,6 +31,35 @@ TEST(AccuracyTest, CompareWithTruthCountsMatchesOutliersAndMisses) {
   EXPECT_NEAR(a.rms_px(), std::sqrt((0.01 + 0.04) / 2), 1e-6);
 }
 
+// Rows split by what the true line lies on: a row crossed by an object's line is the object's (even where
+// the table's line crosses it too), one crossed by the table's line alone is the table's; the two add up.
+TEST(AccuracyTest, CompareWithTruthByPartSplitsObjectAndTableRows) {
+  std::vector<bundle::LinePoint> truth(5);
+  truth[0].row = 0, truth[0].column = 10.0, truth[0].object = 1;
+  truth[1].row = 1, truth[1].column = 10.0, truth[1].object = 1;
+  truth[2].row = 1, truth[2].column = 80.0, truth[2].object = 0;  // both lines in row 1: the object's row
+  truth[3].row = 2, truth[3].column = 90.0, truth[3].object = 0;
+  truth[4].row = 3, truth[4].column = 95.0, truth[4].object = 0;  // not found
+  laser::Line line;
+  // Row 1's point lies on the table's line: still the object's row, matched to the nearest crossing.
+  line.points = {{0, 10.5f, 100, 5, 1, 0}, {1, 80.2f, 100, 5, 1, 0}, {2, 95.0f, 100, 5, 1, 0}};
+  const LineAccuracyParts p = CompareWithTruthByPart(line, truth, 2.0);
+  EXPECT_EQ(p.all.truth_rows, 4u);
+  EXPECT_EQ(p.object.truth_rows, 2u);
+  EXPECT_EQ(p.table.truth_rows, 2u);
+  EXPECT_EQ(p.object.missed, 0u);
+  EXPECT_EQ(p.table.missed, 1u);
+  EXPECT_EQ(p.all.missed, 1u);
+  EXPECT_EQ(p.object.matched, 2u);
+  EXPECT_NEAR(p.object.rms_px(), std::sqrt((0.25 + 0.04) / 2), 1e-6);
+  EXPECT_EQ(p.table.outliers, 1u);  // row 2: 5 px off
+  EXPECT_EQ(p.all.outliers, 1u);
+  EXPECT_EQ(p.all.matched, 2u);
+  const LineAccuracy all = CompareWithTruth(line, truth, 2.0);
+  EXPECT_EQ(all.matched, p.all.matched);
+  EXPECT_EQ(all.missed, p.all.missed);
+}
+
 // A steep true line (10 px per row): a point 5 px along its row from the truth lies 5 / sqrt(101) px from
 // the line, and one on the line between two rows' crossings lies on it; across the line neither is an
 // outlier, along the row the first is.

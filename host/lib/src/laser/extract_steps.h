@@ -9,6 +9,7 @@
 //   ScorePoints      point.cc       step 5 after the rows: width, uncertainty (a steep line's larger), quality
 //   SmoothAlongLine  smooth.cc      (public) the along-line smoothing
 //   LimitSmoothing   smooth.cc      the smoothing moves no point further than its uncertainty
+//   RecentreSteepLines steep.cc     a steep line's centre measured across the line, before the smoothing
 //
 // The kernels these use, once per instruction set, are in kernels.h.
 #pragma once
@@ -85,6 +86,33 @@ constexpr double kGlintUncertaintyPx = 1.6;
 constexpr double kGlintQuality = 0.5;
 // ScoreLineEnds: how many points at either end of a stretch lose quality.
 constexpr int kLineEndRows = 8;
+// RecentreSteepLines (steep.cc): a point is steep where its line's least-squares slope over the points
+// within kSteepFitRows rows either side (a stretch: rows at most 2 apart, at most kSteepMaxStepPx columns
+// per row; a parabola through at least kSteepMinPoints) is at least kSteepSlope columns per row; its centre is the
+// centre of mass across that curve of the difference above 0.15 of its peak, within kSteepAlongPx along
+// the line and the line's width (at least kSteepMinHalfPx) across it, kSteepIterations times, each around
+// the last centre. Chosen on the webcam test's 3 steps (glossy / textured, rows > 1 px across the line;
+// before: 3.49 / 4.41 %): slope 1.5, 4 px along, straight: 2.74 / 4.15 %; slope 1.0: 2.08 / 3.96 %; 8 px
+// along: 2.03 / 4.02 %. Straight, Spot's machine-vision scan (100 frames per row, 0.208 px before) went to
+// 0.241 px: a curved line's centre of mass lies inside its curve; with the parabola over 4 rows 0.212, but
+// the table's straight line lost (3.10 / 4.50 %: the curvature of 9 noisy points is noise); over 8 rows
+// 2.12 / 4.31 %, Spot 0.211 px (across the line 0.185 -> 0.188). Spot loses a little at any setting
+// tried (slope 2: 0.209; peaks under 40 DN only: 0.2095): on a clean, sharp line the row's own centre and
+// the smoothing are better, so the step runs only on frames whose noise was measured on lit pixels
+// (LineStats::noise_on_lit: the webcam-like frames; extract.cc).
+// With the line test and the move limit below (final): test's 3 steps 2.61 / 4.15 %, bench's 8 steps
+// 2.65 / 4.57 % (before: 3.78 / 4.84 %).
+constexpr double kSteepSlope = 1.0;
+constexpr int kSteepFitRows = 8;
+constexpr double kSteepMaxStepPx = 24.0;
+constexpr double kSteepAlongPx = 8.0;
+constexpr double kSteepMinHalfPx = 2.0;
+constexpr int kSteepIterations = 2;
+// ... and only where the stretch's points lie within kSteepMaxResidual (1 + L) px RMS of the fit along
+// their rows: rows whose centres merely lie near each other are no line (RealFramesTest's independent rows
+// jump by up to 40 px and gave 181 rows over 1 px without this test).
+constexpr double kSteepMaxResidual = 0.35;
+constexpr int kSteepMinPoints = 7;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;
 
@@ -220,5 +248,11 @@ int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* points
 // After SmoothAlongLine: each point moves from its own centre `own[i]` by at most its uncertainty, and
 // not at all where the profile changes (saturation begins or ends, but for kFlagAlbedoEdge; kFlagLopsided).
 void LimitSmoothing(const std::vector<float>& own, std::vector<LinePoint>* points);
+
+// After ScorePoints (it reads each point's row width and peak): the points on a steep stretch of line
+// moved to where the centre measured across the line crosses their row (steep.cc); `on`, `off` the frames,
+// `channel` the laser's, `threshold` the row pass's. Returns how many moved.
+int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
+                       std::vector<LinePoint>* points);
 
 }  // namespace rotoscan::laser::detail

@@ -53,49 +53,84 @@ double DistanceAcrossLine(double column, int row, const std::map<int, std::vecto
   return best;
 }
 
-LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
-                              double outlier_px) {
-  LineAccuracy a;
-  a.frames = 1;
+void LineAccuracyParts::Add(const LineAccuracyParts& o) {
+  all.Add(o.all);
+  object.Add(o.object);
+  table.Add(o.table);
+}
+
+LineAccuracyParts CompareWithTruthByPart(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
+                                         double outlier_px) {
+  LineAccuracyParts parts;
   std::map<int, std::vector<double>> by_row;
-  for (const bundle::LinePoint& t : truth) by_row[t.row].push_back(t.column);
-  a.truth_rows = by_row.size();
-  a.extracted = line.points.size();
-  size_t found_rows = 0;
+  std::map<int, bool> on_object;  // a row is the object's where any object's line crosses it
+  for (const bundle::LinePoint& t : truth) {
+    by_row[t.row].push_back(t.column);
+    on_object[t.row] = on_object[t.row] || t.object != 0;
+  }
+  for (LineAccuracy* a : {&parts.all, &parts.object, &parts.table}) a->frames = 1;
+  parts.all.truth_rows = by_row.size();
+  for (const auto& [row, object] : on_object) ++(object ? parts.object : parts.table).truth_rows;
+  std::map<int, bool> found;
   for (const laser::LinePoint& p : line.points) {
     auto it = by_row.find(p.row);
     if (it == by_row.end()) {
-      ++a.spurious;
+      ++parts.all.extracted;
+      ++parts.all.spurious;
       continue;
     }
-    ++found_rows;
+    LineAccuracy& part = on_object[p.row] ? parts.object : parts.table;
+    for (LineAccuracy* a : {&parts.all, &part}) ++a->extracted;
+    found[p.row] = on_object[p.row];
     const double across = DistanceAcrossLine(p.column, p.row, by_row);
-    if (across > outlier_px) {
-      ++a.across_outliers;
-    } else {
-      ++a.across_matched;
-      a.across_sum_squared += across * across;
+    for (LineAccuracy* a : {&parts.all, &part}) {
+      if (across > outlier_px) {
+        ++a->across_outliers;
+      } else {
+        ++a->across_matched;
+        a->across_sum_squared += across * across;
+      }
     }
     double best = 1e300;
     for (double c : it->second) {
       if (std::abs(p.column - c) < std::abs(best)) best = p.column - c;
     }
-    if (std::abs(best) > outlier_px) {
-      ++a.outliers;
-      continue;
+    for (LineAccuracy* a : {&parts.all, &part}) {
+      if (std::abs(best) > outlier_px) {
+        ++a->outliers;
+        continue;
+      }
+      ++a->matched;
+      a->sum_error += best;
+      a->sum_squared += best * best;
+      a->max_abs = std::max(a->max_abs, std::abs(best));
     }
-    ++a.matched;
-    a.sum_error += best;
-    a.sum_squared += best * best;
-    a.max_abs = std::max(a.max_abs, std::abs(best));
   }
-  a.missed = a.truth_rows - found_rows;
-  return a;
+  // Rows found once each (a row with several points is found once).
+  size_t found_object = 0;
+  for (const auto& [row, object] : found) found_object += object;
+  parts.all.missed = parts.all.truth_rows - found.size();
+  parts.object.missed = parts.object.truth_rows - found_object;
+  parts.table.missed = parts.table.truth_rows - (found.size() - found_object);
+  return parts;
+}
+
+LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
+                              double outlier_px) {
+  return CompareWithTruthByPart(line, truth, outlier_px).all;
 }
 
 Result<LineAccuracy> MeasureLineAccuracy(const std::filesystem::path& bundle_dir,
                                          const laser::ExtractOptions& options, size_t max_frames,
                                          double outlier_px, Progress* progress) {
+  ROTOSCAN_ASSIGN_OR_RETURN(const LineAccuracyParts parts,
+                            MeasureLineAccuracyByPart(bundle_dir, options, max_frames, outlier_px, progress));
+  return parts.all;
+}
+
+Result<LineAccuracyParts> MeasureLineAccuracyByPart(const std::filesystem::path& bundle_dir,
+                                                    const laser::ExtractOptions& options, size_t max_frames,
+                                                    double outlier_px, Progress* progress) {
   ROTOSCAN_ASSIGN_OR_RETURN(const bundle::Bundle b, bundle::ReadBundle(bundle_dir));
   if (!b.has_truth)
     return NotFoundError(bundle_dir.string() + " has no truth/ (only virtual scanner bundles do)");
@@ -110,7 +145,7 @@ Result<LineAccuracy> MeasureLineAccuracy(const std::filesystem::path& bundle_dir
   }
   if (max_frames > 0 && laser_frames.size() > max_frames) laser_frames.resize(max_frames);
   ProgressScope scope(progress, "line accuracy", laser_frames.size());
-  LineAccuracy total;
+  LineAccuracyParts total;
   laser::Line line;
   for (size_t index : laser_frames) {
     const bundle::FrameRecord& record = b.frames[index];
@@ -124,7 +159,7 @@ Result<LineAccuracy> MeasureLineAccuracy(const std::filesystem::path& bundle_dir
             .Extract(To8Bit(on, b.header.camera.bit_depth), To8Bit(off, b.header.camera.bit_depth), &line)
             .WithContext(record.file));
     ROTOSCAN_ASSIGN_OR_RETURN(const std::vector<bundle::LinePoint> truth, bundle::ReadLineTruth(b, record));
-    total.Add(CompareWithTruth(line, truth, outlier_px));
+    total.Add(CompareWithTruthByPart(line, truth, outlier_px));
     scope.Advance();
   }
   return total;

@@ -120,6 +120,10 @@ struct ExtractOptions {
   int smooth_order = 1;  // of the local fit: 0 mean, 1 straight line, 2 parabola
   double smooth_max_jump_px = 1.5;
   double smooth_outlier_px = 0.5;
+  // A steep line's centre (over kSteepSlope columns per row: the table top's line, a grazing surface)
+  // measured across the line from the pixels of neighbouring rows, not along its row (steep.cc); only on
+  // frames whose noise was measured on lit pixels (LineStats::noise_on_lit).
+  bool steep_across = true;
 
   // OK, or kInvalidArgument naming the bad field.
   Status Check() const;

@@ -56,10 +56,26 @@ double DistanceAcrossLine(double column, int row, const std::map<int, std::vecto
 LineAccuracy CompareWithTruth(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
                               double outlier_px = 2.0);
 
+// The same split by what the true line lies on. A row is the object's where any object's line crosses it,
+// the table's where only the table top's line does (truth object 0); the two add up to `all`. A point is
+// counted in its row's part (its errors still against the nearest true crossing in the row, whichever
+// object's). The table's points are no less a user's than the object's: `rotoscan process` keeps every
+// triangulated point, the table top's included.
+struct LineAccuracyParts {
+  LineAccuracy all, object, table;
+  void Add(const LineAccuracyParts& other);
+};
+LineAccuracyParts CompareWithTruthByPart(const laser::Line& line, const std::vector<bundle::LinePoint>& truth,
+                                         double outlier_px = 2.0);
+
 // Extracts every laser frame of a scan bundle with truth/ (at most `max_frames`, 0 = all) and compares.
 Result<LineAccuracy> MeasureLineAccuracy(const std::filesystem::path& bundle_dir,
                                          const laser::ExtractOptions& options, size_t max_frames = 0,
                                          double outlier_px = 2.0, Progress* progress = nullptr);
+// The same, split by part (CompareWithTruthByPart).
+Result<LineAccuracyParts> MeasureLineAccuracyByPart(const std::filesystem::path& bundle_dir,
+                                                    const laser::ExtractOptions& options, size_t max_frames = 0,
+                                                    double outlier_px = 2.0, Progress* progress = nullptr);
 
 // The paper's Table 1 test: the cloud of a plane against the true plane. The true plane is fitted to the
 // truth/lines points of object 1 (exact points of the rendered plane); the cloud points within
