@@ -53,24 +53,38 @@ TEST(ClockSyncTest, SlowRoundTripsAreLeftOut) {
 }
 
 // Issue 13: on a loaded host the fastest pings can all be the back-to-back ones taken at open, though the
-// samples span seconds. The kept samples' span (ClockFit::span_us) says so; a drift fitted from them is
-// far off (ClientBoard::KeepAlive then fits the offset alone).
+// samples span seconds. A drift fitted from them is far off; with min_drift_span_us (ClientBoard: its
+// drift_after_us) the fit keeps to the offset, which is then right to the burst's jitter.
 TEST(ClockSyncTest, ABurstOfFastPingsSpansTooLittleForADrift) {
   std::vector<PingSample> samples;
   // 16 pings 1 ms apart, 300 us round trips, the board reading its clock early or late in each.
-  for (int i = 0; i < 16; ++i) samples.push_back(Sample(1'000'000LL + i * 1'000LL, 300, i % 2 == 0 ? 0.2 : 0.8));
+  for (int i = 0; i < 16; ++i)
+    samples.push_back(Sample(1'000'000LL + i * 1'000LL, 300, i % 2 == 0 ? 0.2 : 0.8));
   // Then keep-alives every 0.5 s for 10 s, every one slowed by the load (3 ms round trips).
   for (int i = 1; i <= 20; ++i) samples.push_back(Sample(1'000'000LL + i * 500'000LL, 3000));
   auto fit = FitClock(samples);  // keeps the fastest 25 %: 9 of the burst
   ASSERT_TRUE(fit.ok());
   EXPECT_EQ(fit->samples_used, 9);
-  EXPECT_LE(fit->span_us, 15'000);  // within the burst
-  EXPECT_GT(std::abs(fit->drift - 25e-6), 1e-3);  // the hazard: 1 ms off after 1 s (the test can fail)
+  EXPECT_LE(fit->span_us, 15'000);                // within the burst
+  EXPECT_GT(std::abs(fit->drift - 25e-6), 1e-3);  // the hazard: 1 ms off after 1 s
+  ClockFitOptions guarded;
+  guarded.min_drift_span_us = 10'000'000;
+  auto offset_only = FitClock(samples, guarded);
+  ASSERT_TRUE(offset_only.ok());
+  EXPECT_EQ(offset_only->drift, 0.0);
+  // At the end of the 10 s the true clock (3e6 + (1 + 25 ppm) h) is off by the drift not fitted, 25 ppm x
+  // 11 s = 275 us, plus the burst's jitter (the reading's place in a 300 us round trip: at most 150 us);
+  // the unguarded fit is off by milliseconds.
+  const double h_end = 11e6, truth = 3e6 + (1 + 25e-6) * h_end;
+  EXPECT_LT(std::abs(offset_only->DeviceFromHost(h_end) - truth), 450.0);
+  EXPECT_GT(std::abs(fit->DeviceFromHost(h_end) - truth), 5'000.0);
   ClockFitOptions all;
   all.keep_fraction = 1.0;
+  all.min_drift_span_us = 10'000'000;
   auto wide = FitClock(samples, all);
   ASSERT_TRUE(wide.ok());
   EXPECT_EQ(wide->span_us, 10'001'350);  // the first ping's midpoint (1'000'150) to the last one's
+  EXPECT_NE(wide->drift, 0.0);           // spans enough: the drift is fitted
 }
 
 TEST(ClockSyncTest, OffsetOnlyFit) {

@@ -190,12 +190,11 @@ Result<std::optional<TriggerEdge>> ClientBoard::NextTrigger(int64_t timeout_us, 
         return std::optional<TriggerEdge>();
       }
       if (status->cause == device::StatusCause::kSafety || status->cause == device::StatusCause::kAborted) {
-        last_stop_ = std::string(status->cause == device::StatusCause::kSafety ? "laser safety" : "abort") +
-                     " at step " + std::to_string(status->program_next_step) + ", " +
-                     std::to_string((clock_->NowUs() - started_host_us_) / 1000) + " ms after the start";
-        ROTOSCAN_LOG(kWarning) << Description() << ": program stopped by the board ("
-                               << (status->cause == device::StatusCause::kSafety ? "laser safety" : "abort")
-                               << " at step " << status->program_next_step << "), resuming";
+        const std::string stop =
+            std::string(status->cause == device::StatusCause::kSafety ? "laser safety" : "abort") +
+            " at step " + std::to_string(status->program_next_step);
+        last_stop_ = stop + ", " + std::to_string((clock_->NowUs() - started_host_us_) / 1000) + " ms after the start";
+        ROTOSCAN_LOG(kWarning) << Description() << ": program stopped by the board (" << stop << "), resuming";
         // ResumeProgram() here, not the client's: the scan may have resumed it already (a quiet spell),
         // and a program running again is not a finished one.
         ROTOSCAN_ASSIGN_OR_RETURN(auto resumed, ResumeProgram());
@@ -250,18 +249,11 @@ Status ClientBoard::KeepAlive() {
   ROTOSCAN_ASSIGN_OR_RETURN(const device::PingSample sample, client_->Ping());
   samples_.push_back(sample);
   if (samples_.size() > options_.max_samples) samples_.erase(samples_.begin());
+  // The drift once the pings the fit keeps (the fastest) span drift_after_us: on a loaded host those can all
+  // be the back-to-back pings taken at open, though the samples span minutes (issue 13).
   device::ClockFitOptions fit_options = options_.clock_fit;
-  fit_options.fit_drift = options_.clock_fit.fit_drift &&
-                          samples_.back().host_send_us - samples_.front().host_send_us >= options_.drift_after_us;
+  fit_options.min_drift_span_us = options_.drift_after_us;
   auto fit = device::FitClock(samples_, fit_options);
-  // The fit keeps the fastest pings. On a loaded host those can all be the back-to-back pings taken at open,
-  // a few milliseconds apart, though the samples span minutes: a drift fitted from them was 0.5 % (issue
-  // 13: 50 ms off after 10 s, and every frame of the scan's end unmatched, its shots re-taken in vain).
-  // Fit the drift only when the pings used span drift_after_us; else the offset alone.
-  if (fit.ok() && fit_options.fit_drift && fit->span_us < options_.drift_after_us) {
-    fit_options.fit_drift = false;
-    fit = device::FitClock(samples_, fit_options);
-  }
   if (fit.ok()) {
     fit_ = *fit;
   } else {

@@ -14,6 +14,7 @@ Status ClockFitOptions::Check() const {
   }
   if (min_samples < 1) return InvalidArgumentError("clock fit: min_samples must be >= 1");
   if (fit_drift && min_samples < 2) return InvalidArgumentError("clock fit: a drift needs min_samples >= 2");
+  if (min_drift_span_us < 0) return InvalidArgumentError("clock fit: min_drift_span_us must be >= 0");
   return Status::Ok();
 }
 
@@ -52,8 +53,10 @@ Result<ClockFit> FitClock(const std::vector<PingSample>& samples, const ClockFit
   }
   const double n = static_cast<double>(hs.size());
   const double mean_h = sum_h / n, mean_d = sum_d / n;
+  const auto [first, last] = std::minmax_element(hs.begin(), hs.end());
+  const int64_t span_us = std::llround(*last - *first);
   double slope = 1.0;
-  if (options.fit_drift) {
+  if (options.fit_drift && span_us >= options.min_drift_span_us) {
     double shh = 0, shd = 0;
     for (size_t i = 0; i < hs.size(); ++i) {
       shh += (hs[i] - mean_h) * (hs[i] - mean_h);
@@ -78,8 +81,7 @@ Result<ClockFit> FitClock(const std::vector<PingSample>& samples, const ClockFit
   fit.samples_used = static_cast<int>(hs.size());
   fit.min_round_trip_us = sorted[0].host_receive_us - sorted[0].host_send_us;
   fit.residual_rms_us = std::sqrt(sq / n);
-  const auto [first, last] = std::minmax_element(hs.begin(), hs.end());
-  fit.span_us = std::llround(*last - *first);
+  fit.span_us = span_us;
   return fit;
 }
 

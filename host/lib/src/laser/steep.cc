@@ -4,15 +4,18 @@
 // it obliquely: the row's profile is the line's own, stretched by L = sqrt(1 + s^2) (s: columns per row),
 // and its centre of mass along the row errs by L times its error across the line, from the few pixels of
 // one row. Here such a point's centre is measured across the line instead: the line's direction and
-// curvature from the neighbouring rows' points (least squares over kSteepFitRows rows either side), then the centre
-// of mass of the difference, over the pixels within kSteepAlongPx of the point along the line and within
-// the line's width across it, of their distance across the line (pixels of several rows, as a column
+// curvature from the neighbouring rows' points (least squares over kSteepFitRows rows either side), then the
+// centre of mass of the difference, over the pixels within kSteepAlongPx of the point along the line and
+// within the line's width across it, of their distance across the line (pixels of several rows, as a column
 // profile would be for a horizontal line). The point is put where that centre's line (same slope) crosses
 // the row: the row's column moves by L times the offset across. A vertical line (|s| under kSteepSlope)
 // costs only its slope's test.
 #include <algorithm>
 #include <cmath>
 #include <vector>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
 
 #include "extract_steps.h"
 
@@ -47,8 +50,10 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     };
     // A point with an adjacent neighbour less than half kSteepSlope away on either side is on a vertical
     // stretch: nothing more to do (the common case).
-    if ((i > 0 && p[i - 1].row + 1 == p[i].row && std::abs(p[i].column - p[i - 1].column) < 0.5 * kSteepSlope) ||
-        (i + 1 < n && p[i + 1].row == p[i].row + 1 && std::abs(p[i + 1].column - p[i].column) < 0.5 * kSteepSlope))
+    if ((i > 0 && p[i - 1].row + 1 == p[i].row &&
+         std::abs(p[i].column - p[i - 1].column) < 0.5 * kSteepSlope) ||
+        (i + 1 < n && p[i + 1].row == p[i].row + 1 &&
+         std::abs(p[i + 1].column - p[i].column) < 0.5 * kSteepSlope))
       continue;
     size_t lo = i, hi = i;
     while (lo > 0 && p[lo - 1].row >= p[i].row - kSteepFitRows && joined(lo - 1, lo)) --lo;
@@ -56,46 +61,28 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     if (hi - lo + 1 < kSteepMinPoints) continue;  // too few rows for a direction and a test of it
     // The line's column against the row near the point: column = c0 + s dr + k dr^2 (dr = row - r0), by
     // least squares through the stretch's points (at least kSteepMinPoints) relative to the point. The
-    // curvature matters: a straight model of a
-    // curved line puts the centre of mass on the concave side by about k L^3 along^2 / 6.
+    // curvature matters: a straight model of a curved line puts the centre of mass on the concave side by
+    // about k L^3 along^2 / 6.
     const int r0 = p[i].row;
     const double c0 = p[i].column;
-    double m[3][4] = {};  // normal equations [A | b] for (offset, s, k)
-    const bool curved = true;
-    const int terms = curved ? 3 : 2;
+    Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();  // normal equations for (offset, s, k)
+    Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
     for (size_t k = lo; k <= hi; ++k) {
-      const double dr = p[k].row - r0, dc = p[k].column - c0;
-      const double basis[3] = {1.0, dr, dr * dr};
-      for (int a = 0; a < terms; ++a) {
-        for (int b = 0; b < terms; ++b) m[a][b] += basis[a] * basis[b];
-        m[a][3] += basis[a] * dc;
-      }
+      const double dr = p[k].row - r0;
+      const Eigen::Vector3d basis(1.0, dr, dr * dr);
+      normal += basis * basis.transpose();
+      rhs += basis * (p[k].column - c0);
     }
-    // Gaussian elimination (the system is tiny and well conditioned over distinct rows).
-    bool solved = true;
-    for (int a = 0; a < terms && solved; ++a) {
-      if (std::abs(m[a][a]) < 1e-9) {
-        solved = false;
-        break;
-      }
-      for (int b = a + 1; b < terms; ++b) {
-        const double f = m[b][a] / m[a][a];
-        for (int c = a; c < 4; ++c) m[b][c] -= f * m[a][c];
-      }
-    }
-    if (!solved) continue;
-    double x[3] = {0, 0, 0};
-    for (int a = terms - 1; a >= 0; --a) {
-      double v = m[a][3];
-      for (int b = a + 1; b < terms; ++b) v -= m[a][b] * x[b];
-      x[a] = v / m[a][a];
-    }
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
+    if (ldlt.info() != Eigen::Success) continue;
+    const Eigen::Vector3d x = ldlt.solve(rhs);
+    if (!x.allFinite()) continue;
     const double s = x[1], curvature = x[2];
     if (std::abs(s) < kSteepSlope) continue;
     const double length = std::sqrt(1.0 + s * s);
     // A line, not rows that merely lie near each other: the points' RMS distance along their rows from
     // the fit (per degree of freedom) is at most kSteepMaxResidual (1 + L) px (a row's error is L times one
-// across the line).
+    // across the line).
     double residual2 = 0;
     for (size_t k = lo; k <= hi; ++k) {
       const double dr = p[k].row - r0;
@@ -103,7 +90,7 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
       residual2 += e * e;
     }
     if (residual2 > kSteepMaxResidual * kSteepMaxResidual * (1.0 + length) * (1.0 + length) *
-                        static_cast<double>(hi - lo + 1 - terms))
+                        static_cast<double>(hi - lo + 1 - 3))
       continue;
     // Across the line, the row's width divided by L; the window is that width either side.
     const double half = std::max(kSteepMinHalfPx, p[i].width / length);
@@ -112,6 +99,7 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     const double row_reach = (kSteepAlongPx + half * std::abs(s)) / length + 1.0;
     const int r_first = std::max(0, static_cast<int>(std::floor(r0 - row_reach)));
     const int r_last = std::min(rows - 1, static_cast<int>(std::ceil(r0 + row_reach)));
+    const double col_reach = (half + kSteepAlongPx) * length;
     double t = 0;  // the centre's offset across the line from the row's point, px
     bool ok = true;
     for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
@@ -119,7 +107,6 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
       for (int r = r_first; r <= r_last; ++r) {
         const double dr = r - r0;
         const double centre = c0 + t * length + s * dr + curvature * dr * dr;  // the line's column in row r
-        const double col_reach = (half + kSteepAlongPx) * length;
         const int c_first = std::max(0, static_cast<int>(std::floor(centre - col_reach)));
         const int c_last = std::min(cols - 1, static_cast<int>(std::ceil(centre + col_reach)));
         for (int c = c_first; c <= c_last; ++c) {
