@@ -29,6 +29,9 @@ std::string Rgb(const Eigen::Vector3d& c) {
   return text;
 }
 
+std::string Matrix(const Eigen::Vector3d& x, const Eigen::Vector3d& y, const Eigen::Vector3d& z,
+                   const Eigen::Vector3d& t);
+
 std::string Finish(const Surface& s, double ambient) {
   std::ostringstream out;
   out << "finish { ambient " << ambient << " diffuse 1 brilliance 1";
@@ -41,7 +44,11 @@ std::string Texture(const Surface& s, double ambient) {
   std::ostringstream out;
   out << "texture { pigment { ";
   if (s.checker_mm > 0) {
-    out << "checker " << Rgb(s.albedo) << ", " << Rgb(s.albedo * s.dark_albedo) << " scale " << s.checker_mm;
+    // POV-Ray's checker takes its first colour where the cell indices' sum is even.
+    const Eigen::Matrix3d r = s.checker_frame.linear();
+    out << "checker " << Rgb(s.albedo) << ", " << Rgb(s.albedo * s.dark_albedo)
+        << " translate <-0.25, -0.25, -0.25> scale " << s.checker_mm << " "
+        << Matrix(r.col(0), r.col(1), r.col(2), s.checker_frame.translation());
   } else {
     out << Rgb(s.albedo);
   }

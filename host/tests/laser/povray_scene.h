@@ -31,6 +31,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 
 #include "rotoscan/bundle/truth.h"
@@ -54,6 +55,9 @@ struct Surface {
   Eigen::Vector3d albedo{0.8, 0.8, 0.8};
   double checker_mm = 0.0;
   double dark_albedo = 0.15;
+  // The checker's frame (camera from checker): dark cells where floor(q.x) + floor(q.y) + floor(q.z) is
+  // odd, q = (point in this frame) / checker_mm + 0.25, as our renderer's solid checker (sim/mesh.cc).
+  Eigen::Isometry3d checker_frame = Eigen::Isometry3d::Identity();
   double phong = 0.0;
   double phong_size = 40.0;
 };
