@@ -15,6 +15,8 @@ packages=(
   gcc-arm-none-eabi libnewlib-arm-none-eabi dfu-util
   # the firmware image on an emulated Cortex-M4 (issue 18), the API reference (issue 17)
   libunicorn-dev doxygen
+  # frames from a renderer we did not write (issue 15: laser_povray_test)
+  povray
 )
 
 missing=()
