@@ -157,6 +157,18 @@ TEST(PovrayTest, CameraProjectionMatchesTheRig) {
   EXPECT_LE(worst, 0.1);
 }
 
+// POV-Ray has no lens distortion: a rig with one is refused before anything runs, with the reason.
+TEST(PovrayTest, RefusesALensWithDistortion) {
+  ScratchDir dir;
+  PovScene scene = MakeScene(Shape::kSphere, kWidth, kHeight);
+  scene.rig.camera.distortion[0] = 0.05;
+  Result<cv::Mat> image = Render(scene, Frame::kLaserOn, dir.path(), "distorted");
+  ASSERT_FALSE(image.ok());
+  EXPECT_EQ(image.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(image.status().message().find("distortion"), std::string::npos) << image.status().ToString();
+  EXPECT_FALSE(std::filesystem::exists(dir / "distorted.pov"));
+}
+
 // The laser's profile across the sheet is the model's (SheetProfile: the share of the area light's
 // point lights that see a point through the slit): on the plane, the difference of the red channel
 // against albedo * power * cos(incidence) * profile, averaged over the pixel as POV-Ray's 3x3

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <iterator>
 #include <random>
 #include <sstream>
 
@@ -238,7 +239,13 @@ Result<cv::Mat> Render(const PovScene& scene, Frame frame, const fs::path& work_
     cmd << aa;
   }
   cmd << " > '" << log.string() << "' 2>&1";
-  if (std::system(cmd.str().c_str()) != 0) return InternalError("povray failed, see " + log.string());
+  if (std::system(cmd.str().c_str()) != 0) {
+    // The log's end says why (a parse error names the scene line); the work directory may be a scratch one.
+    std::ifstream file(log);
+    std::string text((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+    if (text.size() > 600) text = text.substr(text.size() - 600);
+    return InternalError("povray failed (" + log.string() + "): " + text);
+  }
   cv::Mat image = cv::imread(png.string(), cv::IMREAD_COLOR);
   if (image.empty() || image.cols != scene.rig.camera.width || image.rows != scene.rig.camera.height)
     return InternalError("povray wrote no readable frame of the rig's size: " + png.string());
@@ -276,6 +283,7 @@ std::vector<bundle::LinePoint> AnalyticLineTruth(const PovScene& scene) {
   const geometry::CameraModel& cam = scene.rig.camera;
   const LaserSheet& laser = scene.laser;
   const PlateFrame plate = Plate(laser);
+  const Eigen::Isometry3d world_from_cam = scene.rig.WorldFromCamAtAngle(0.0);
   std::vector<bundle::LinePoint> truth;
   // The laser plane's point on the ray of pixel (c, r) (eq. 2 inverted, no distortion), or nullopt.
   auto on_plane = [&](double c, int r) -> std::optional<Eigen::Vector3d> {
@@ -334,7 +342,7 @@ std::vector<bundle::LinePoint> AnalyticLineTruth(const PovScene& scene) {
             point.row = r;
             point.column = column;
             point.point_in_cam = *p;
-            point.point_in_world = *p;
+            point.point_in_world = world_from_cam * *p;
             point.object = s.object;
             truth.push_back(point);
           }

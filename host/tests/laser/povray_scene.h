@@ -129,8 +129,8 @@ std::optional<Hit> FirstHit(const std::vector<Surface>& surfaces, const Eigen::V
 // The true line (bundle/truth.h LinePoint, object = Surface::object), sorted by row then column: for every
 // image row, each column where (laser plane ∩ a surface) crosses it, kept where the camera sees that
 // point first along its ray and the laser lights it (nothing between it and the laser's origin, past the
-// plate). Columns are found by bisection to 1e-9 px between samples 0.25 px apart. point_in_world =
-// point_in_cam (no table turn).
+// plate). Columns are found by bisection to 1e-9 px between samples 0.25 px apart; point_in_world is the
+// world frame of the table at angle 0 (Rig::WorldFromCamAtAngle).
 std::vector<bundle::LinePoint> AnalyticLineTruth(const PovScene& scene);
 
 // Our sensor noise on a POV-Ray frame (POV-Ray renders without noise): Gaussian, sigma^2 =
