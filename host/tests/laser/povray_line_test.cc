@@ -503,9 +503,18 @@ void RunScene(Shape shape, int width, int height, const Limits& clean, const Lim
     ASSERT_TRUE(ours.ok()) << ours.status().ToString();
     PrintFigures((name + " (ours)").c_str(), noise ? "noise" : "clean", *ours);
   }
+  // The clean pair as a bundle (kept under ROTOSCAN_POVRAY_OUT, with the noisy one): the library's reader
+  // of rendered bundles (pipeline::MeasureLineAccuracyByPart, `rotoscan evaluate --lines`) gives the same.
+  const std::filesystem::path bundle_dir = (out ? std::filesystem::path(out) : dir.path()) / (name + "-" + size);
+  Status status = WriteBundle(scene, *pair, truth, bundle_dir);
+  ASSERT_TRUE(status.ok()) << status.ToString();
+  Result<pipeline::LineAccuracyParts> read = pipeline::MeasureLineAccuracyByPart(bundle_dir, laser::ExtractOptions{}, 0, 1.0);
+  ASSERT_TRUE(read.ok()) << read.status().ToString();
+  EXPECT_EQ(read->all.truth_rows, figures[0].parts.all.truth_rows);
+  EXPECT_EQ(read->all.matched, figures[0].parts.all.matched);
+  EXPECT_EQ(read->object.truth_rows, figures[0].parts.object.truth_rows);
+  EXPECT_NEAR(read->all.rms_px(), figures[0].parts.all.rms_px(), 1e-9);
   if (out) {
-    Status status = WriteBundle(scene, *pair, truth, std::filesystem::path(out) / (name + "-" + size));
-    EXPECT_TRUE(status.ok()) << status.ToString();
     status = WriteBundle(scene, noisy_pair, truth, std::filesystem::path(out) / (name + "-" + size + "-noise"));
     EXPECT_TRUE(status.ok()) << status.ToString();
   }
