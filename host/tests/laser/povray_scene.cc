@@ -230,7 +230,10 @@ Result<cv::Mat> Render(const PovScene& scene, Frame frame, const fs::path& work_
     if (!file) return IoError("cannot write " + pov.string());
   }
   std::ostringstream cmd;
-  cmd << "povray -D -V +I'" << pov.string() << "' +O'" << png.string() << "' +W" << scene.rig.camera.width
+  // Run in the work directory with relative names: POV-Ray's I/O security (restricted by default, Debian's
+  // /etc/povray/3.7/povray.conf) always lets it read and write the current directory.
+  cmd << "cd '" << fs::absolute(work_dir).string() << "' && povray -D -V +I'" << pov.filename().string() << "' +O'"
+      << png.filename().string() << "' +W" << scene.rig.camera.width
       << " +H" << scene.rig.camera.height << " +FN8 File_Gamma=1.0 -J";
   if (scene.aa_method > 0) {
     // POV-Ray reads "+A0" as a malformed option: the threshold needs its decimal point.
@@ -238,7 +241,7 @@ Result<cv::Mat> Render(const PovScene& scene, Frame frame, const fs::path& work_
     std::snprintf(aa, sizeof aa, " +A%.4f +AM%d +R%d", scene.aa_threshold, scene.aa_method, scene.aa_depth);
     cmd << aa;
   }
-  cmd << " > '" << log.string() << "' 2>&1";
+  cmd << " > '" << log.filename().string() << "' 2>&1";
   if (std::system(cmd.str().c_str()) != 0) {
     // The log's end says why (a parse error names the scene line); the work directory may be a scratch one.
     std::ifstream file(log);
