@@ -547,6 +547,7 @@ void RunScene(Shape shape, int width, int height, const Limits& clean, const Lim
   }
 }
 
+// No limits: the opt-in webcam-size run (WebcamSizeFigures) prints its figures only.
 constexpr Limits kLoose{0, 100, 10, 100, 10};
 
 // Limits from the measured figures (README "Frames from POV-Ray"; the renders are deterministic, the noise
