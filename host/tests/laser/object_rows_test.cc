@@ -45,6 +45,9 @@ struct ObjectRows {
   int within = 0;
   // Over 1 px by cause, each row once, first cause first.
   int glint = 0, albedo = 0, albedo_unflagged = 0, weak = 0, line_end = 0, steep = 0, rest = 0;
+  // The same rows by the finer causes of CauseOf (deliverable 1 of issue 15's object rows), and how many
+  // of each had an uncertainty_px at least their distance across (covered).
+  std::map<std::string, std::pair<int, int>> by_cause;
   // Not found by cause.
   int on_other = 0;  // the row's point is on another line (the table's, a reflection)
   int low_contrast = 0, too_narrow = 0, too_wide = 0, off_saturated = 0, stronger_rejected = 0, other = 0;
@@ -122,6 +125,28 @@ bool Dump(const char* kind) {
   return v != nullptr && std::string(v) == kind;
 }
 
+// A found row over 1 px across, by its first cause in this order: a glint (or its skirt); the row's own
+// estimate (no smoothing, no steep recentring) was within 1 px and the steep recentring or the smoothing
+// moved it; the albedo divided out; another candidate in the row (kFlagMultiplePeaks / StrongerRejected:
+// the wrong one may have been chosen); saturated (notch-filled when kFlagNotched); the object's line ends
+// within 4 rows (a rim, a silhouette, an occlusion boundary: the line jumps); steep (the true line moves
+// more than 2 px per row); weak (peak < 30 DN); texture under the line not divided; else unexplained.
+std::string CauseOf(const LinePoint& p, double raw_across, double unsteep_across, bool end, bool steep,
+                    bool texture) {
+  if (p.flags & kFlagGlint) return "glint or its skirt";
+  if (unsteep_across <= 1.0 && raw_across > 1.0) return "steep recentring moved it";
+  if (raw_across <= 1.0) return "smoothing moved it";
+  if (p.flags & kFlagAlbedoEdge) return "albedo divided";
+  if (p.flags & (kFlagMultiplePeaks | kFlagStrongerRejected)) return "another candidate in the row";
+  if (p.flags & kFlagNotched) return "saturated, notch filled";
+  if (p.flags & kFlagSaturated) return "saturated";
+  if (end) return "line ends within 4 rows (edge)";
+  if (steep) return "steep (> 2 px per row)";
+  if (p.peak < 30) return "weak (< 30 DN)";
+  if (texture) return "texture not divided";
+  return "unexplained";
+}
+
 ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int steps) {
   ObjectRows out;
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
@@ -133,6 +158,12 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
   if (!renderer.ok()) return out;
   const ExtractOptions options;
   LineExtractor extractor(options);
+  // The row's own estimates: no smoothing (steep recentring on), and neither.
+  ExtractOptions raw_options = options, unsteep_options = options;
+  raw_options.smooth_half_rows = 0;
+  unsteep_options.smooth_half_rows = 0;
+  unsteep_options.steep_across = false;
+  LineExtractor raw_extractor(raw_options), unsteep_extractor(unsteep_options);
   for (int step = 0; step < steps; ++step) {
     const double angle = step * 2.0 * 3.14159265358979323846 / steps;
     const sim::RenderedStep frames =
@@ -141,8 +172,10 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
     cv::extractChannel(frames.frames[2], off, 2);
     for (int k = 0; k < 2; ++k) {
       const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
-      Line line;
+      Line line, raw_line, unsteep_line;
       EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
+      EXPECT_TRUE(raw_extractor.Extract(frames.frames[k], frames.frames[2], &raw_line).ok());
+      EXPECT_TRUE(unsteep_extractor.Extract(frames.frames[k], frames.frames[2], &unsteep_line).ok());
       cv::Mat on;
       cv::extractChannel(frames.frames[k], on, 2);
       std::map<int, std::vector<double>> all_by_row, object_by_row;
@@ -152,6 +185,12 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
       }
       std::map<int, size_t> point_of_row;
       for (size_t i = 0; i < line.points.size(); ++i) point_of_row[line.points[i].row] = i;
+      // A row's distance across in another line (1e9 when that line has no point in the row).
+      auto across_in = [&](const Line& other, int row) {
+        for (const LinePoint& q : other.points)
+          if (q.row == row) return pipeline::DistanceAcrossLine(q.column, row, object_by_row);
+        return 1e9;
+      };
       for (const auto& [row, columns] : object_by_row) {
         ++out.lit;
         const uint8_t* a = on.ptr<uint8_t>(row);
@@ -181,6 +220,9 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
         const double across = pipeline::DistanceAcrossLine(p.column, row, object_by_row);
         if (across > 3.0) {  // the point is on another line
           ++out.on_other;
+          auto& cause = out.by_cause["on another line (> 3 px: the table's, a second line)"];
+          ++cause.first;
+          cause.second += p.uncertainty_px >= across;
           if (Dump("other") && out.dumped++ < 40)
             DumpRow("on another line", a, b, on.cols, row, columns[0], p.column);
           continue;
@@ -211,6 +253,12 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
           steep = steep || move > 2.0;
         }
         const double half = 0.5 * std::max(4.0f, p.width) + 3.0;
+        {
+          auto& cause = out.by_cause[CauseOf(p, across_in(raw_line, row), across_in(unsteep_line, row), end,
+                                             steep, TextureUnder(b, on.cols, nearest, half))];
+          ++cause.first;
+          cause.second += p.uncertainty_px >= across;
+        }
         if (p.flags & kFlagGlint) {
           ++out.glint;
         } else if (p.flags & kFlagAlbedoEdge) {
@@ -426,6 +474,9 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
           "%d, steep (the true line > 2 px per row) %d, weak (peak < 30 DN) %d, texture under the line not "
           "divided %d, strong unflagged %d\n",
           r.glint, r.albedo, r.line_end, r.steep, r.weak, r.albedo_unflagged, r.rest);
+      std::printf("  > 1 px across (and > 3 px) by first cause: rows, of which uncertainty_px covered the error:");
+      for (const auto& [cause, n] : r.by_cause) std::printf(" %s %d (%d);", cause.c_str(), n.first, n.second);
+      std::printf("\n");
       std::printf(
           "  not found %d: point on another line %d, below threshold %d, candidates too narrow %d, too wide "
           "%d, off frame saturated %d, a much stronger one rejected %d, other %d\n",
