@@ -79,6 +79,12 @@ struct AlbedoKernel {
   }
 };
 
+// The divisor of the difference at a pixel whose blurred laser-off value is `blurred` (at least floor_dn),
+// relative to the window's highest laser-off value: (blurred / high)^kAlbedoExponent (extract_steps.h).
+double AlbedoDivisor(double blurred, double floor_dn, int high) {
+  return std::pow(std::max(blurred, floor_dn) / std::max(1, high), kAlbedoExponent);
+}
+
 }  // namespace
 
 bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
@@ -124,7 +130,7 @@ double AlbedoNormalisedCentre(const uint8_t* d, const uint8_t* b, int cols, int 
       sw += w;
       sv += w * b[k];
     }
-    ratio[i - lo] = d[i] / std::max(sv / sw, floor_dn);
+    ratio[i - lo] = d[i] / AlbedoDivisor(sv / sw, floor_dn, high);
   }
   // The centre of mass of the ratio, as kCenterOfMass's (level 0.15 of its peak), from the ratio's
   // highest value within the extent widened by half its width each side.
