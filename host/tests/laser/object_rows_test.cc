@@ -58,6 +58,10 @@ struct ObjectRows {
   std::vector<char>
       divided;  // of the found ones: kFlagAlbedoEdge  // their uncertainty (px), distance across
   int dumped = 0;
+  // The rows the per-row extractor (no smoothing) divided: count, sum of the signed error towards the
+  // laser-off row's brighter side, squared error, over 1 px.
+  int divided_raw = 0, divided_raw_over = 0;
+  double divided_raw_signed = 0, divided_raw_squared = 0;
 };
 
 // The laser-off row changes inside [first, last] by more than the extractor's albedo gate asks (a looser
@@ -132,11 +136,11 @@ bool Dump(const char* kind) {
 // within 4 rows (a rim, a silhouette, an occlusion boundary: the line jumps); steep (the true line moves
 // more than 2 px per row); weak (peak < 30 DN); texture under the line not divided; else unexplained.
 std::string CauseOf(const LinePoint& p, double raw_across, double unsteep_across, bool end, bool steep,
-                    bool texture) {
+                    bool texture, bool raw_moved) {
   if (p.flags & kFlagGlint) return "glint or its skirt";
   if (unsteep_across <= 1.0 && raw_across > 1.0) return "steep recentring moved it";
   if (raw_across <= 1.0) return "smoothing moved it";
-  if (p.flags & kFlagAlbedoEdge) return "albedo divided";
+  if (p.flags & kFlagAlbedoEdge) return raw_moved ? "albedo divided, smoothed" : "albedo divided, not smoothed";
   if (p.flags & (kFlagMultiplePeaks | kFlagStrongerRejected)) return "another candidate in the row";
   if (p.flags & kFlagNotched) return "saturated, notch filled";
   if (p.flags & kFlagSaturated) return "saturated";
@@ -191,6 +195,26 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
           if (q.row == row) return pipeline::DistanceAcrossLine(q.column, row, object_by_row);
         return 1e9;
       };
+      for (const LinePoint& q : unsteep_line.points) {
+        if (!(q.flags & kFlagAlbedoEdge)) continue;
+        const auto t = object_by_row.find(q.row);
+        if (t == object_by_row.end() || t->second.size() != 1) continue;
+        const double true_column = t->second[0];
+        if (std::abs(q.column - true_column) > 3.0) continue;
+        const uint8_t* b = off.ptr<uint8_t>(q.row);
+        const int c = static_cast<int>(std::lround(true_column));
+        if (c < 8 || c + 8 >= off.cols) continue;
+        int left = 0, right = 0;
+        for (int i = 1; i <= 6; ++i) {
+          left += b[c - i];
+          right += b[c + i];
+        }
+        const double e = q.column - true_column;
+        ++out.divided_raw;
+        out.divided_raw_signed += right > left ? e : -e;
+        out.divided_raw_squared += e * e;
+        out.divided_raw_over += std::abs(e) > 1.0;
+      }
       for (const auto& [row, columns] : object_by_row) {
         ++out.lit;
         const uint8_t* a = on.ptr<uint8_t>(row);
@@ -255,7 +279,8 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
         const double half = 0.5 * std::max(4.0f, p.width) + 3.0;
         {
           auto& cause = out.by_cause[CauseOf(p, across_in(raw_line, row), across_in(unsteep_line, row), end,
-                                             steep, TextureUnder(b, on.cols, nearest, half))];
+                                             steep, TextureUnder(b, on.cols, nearest, half),
+                                             std::abs(across_in(raw_line, row) - across) > 0.01)];
           ++cause.first;
           cause.second += p.uncertainty_px >= across;
         }
@@ -457,6 +482,65 @@ TEST(RealFramesTest, AlbedoStepOnABlackLevelDarkCellIsDividedOut) {
   EXPECT_LT(std::sqrt(sum2 / n), 0.5 * std::sqrt(plain_sum2 / n));
 }
 
+// Issue 15: the albedo division's bias. The webcam blurs the product of the albedo and the line (optics,
+// demosaicing, 4:2:0 JPEG; ~2 px in the red channel), and the laser-off frame shows the albedo blurred the
+// same way: dividing by that blurred row leaves part of the albedo's contrast in, and the centre stays
+// pulled towards the bright side. The division's exponent (kAlbedoExponent, 1.1) takes that bias out. Rows
+// of a line of sigma 3.4 px (the webcam preset's) over an albedo step 0.9 / 0.09 within 3 px of its centre,
+// blurred 2 px after the product, 1 DN noise, no speckle (the bias is what is measured): the divided
+// points' mean error towards the bright side. Measured (deterministic): exponent 1.0 +0.169 px, 1.1
+// -0.118 px, 1.2 -0.412 px. On the rendered textured set the bias is gone at 1.1 (WebcamObjectRowsByCause
+// checks it there, with a wider margin); here, with no speckle and a sharper step, at ~1.05.
+TEST(RealFramesTest, AlbedoDivisionIsUnbiasedUnderTheWebcamBlur) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> centre_of(50.0, 70.0), step_offset(-3.0, 3.0);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const int rows = 400, cols = 128;
+  const double sigma = 3.4;
+  cv::Mat on(rows, cols, CV_8UC1), off(rows, cols, CV_8UC1);
+  std::vector<double> centre(rows);
+  std::vector<bool> bright_left(rows);
+  for (int r = 0; r < rows; ++r) {
+    const double c = centre_of(rng);
+    centre[static_cast<size_t>(r)] = c;
+    const double step_at = c + step_offset(rng);
+    bright_left[static_cast<size_t>(r)] = r % 2 == 0;
+    cv::Mat lit(1, cols, CV_64F), ambient(1, cols, CV_64F);
+    for (int x = 0; x < cols; ++x) {
+      const double albedo = (x < step_at) == bright_left[static_cast<size_t>(r)] ? 0.9 : 0.09;
+      const double laser = 220.0 * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
+      lit.at<double>(0, x) = albedo * (laser + 60.0);
+      ambient.at<double>(0, x) = albedo * 60.0;
+    }
+    cv::GaussianBlur(lit, lit, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
+    cv::GaussianBlur(ambient, ambient, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
+    for (int x = 0; x < cols; ++x) {
+      on.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(lit.at<double>(0, x) + noise(rng));
+      off.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(ambient.at<double>(0, x) + noise(rng));
+    }
+  }
+  ExtractOptions per_row;
+  per_row.smooth_half_rows = 0;
+  per_row.noise_dn = 1.4;
+  auto line = ExtractLine(on, off, per_row);
+  ASSERT_TRUE(line.ok());
+  int divided = 0;
+  double towards_bright = 0, sum2 = 0;
+  for (const LinePoint& p : line->points) {
+    if (!(p.flags & kFlagAlbedoEdge)) continue;
+    const double e = p.column - centre[static_cast<size_t>(p.row)];
+    ++divided;
+    towards_bright += bright_left[static_cast<size_t>(p.row)] ? -e : e;
+    sum2 += e * e;
+  }
+  ASSERT_GT(divided, rows * 8 / 10);
+  const double bias = towards_bright / divided;
+  std::printf("albedo division under a 2 px blur: %d rows divided, mean error towards the bright side %+.3f px, "
+              "rms %.3f px\n",
+              divided, bias, std::sqrt(sum2 / divided));
+  EXPECT_LT(std::abs(bias), 0.15);
+}
+
 TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
   const int steps = EnvInt("ROTOSCAN_OBJECT_ROWS_STEPS", 3);
   for (const char* file : {"glossy-webcam.json", "textured-webcam.json"}) {
@@ -474,6 +558,9 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
           "%d, steep (the true line > 2 px per row) %d, weak (peak < 30 DN) %d, texture under the line not "
           "divided %d, strong unflagged %d\n",
           r.glint, r.albedo, r.line_end, r.steep, r.weak, r.albedo_unflagged, r.rest);
+      std::printf("  divided rows per row (no smoothing, no steep): %d, mean towards the bright side %+.3f px, rms %.3f px, over 1 px %d\n",
+                  r.divided_raw, r.divided_raw_signed / std::max(1, r.divided_raw),
+                  std::sqrt(r.divided_raw_squared / std::max(1, r.divided_raw)), r.divided_raw_over);
       std::printf("  > 1 px across (and > 3 px) by first cause: rows, of which uncertainty_px covered the error:");
       for (const auto& [cause, n] : r.by_cause) std::printf(" %s %d (%d);", cause.c_str(), n.first, n.second);
       std::printf("\n");
@@ -506,6 +593,12 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
       // f/4 96.0 %, 2.3 %; f/2.4 96.0 %, 2.3 % (before this session's rules: textured 95.9 %, 4.0 % and
       // 96.0 %, 3.8 %). The limits keep a margin for the 3 steps' spread.
       const bool textured = std::string(file) == "textured-webcam.json";
+      // The albedo division leaves no bias towards the brighter side (kAlbedoExponent): measured 3 steps
+      // +0.016 / +0.020 px (f/4 / f/2.4), 8 steps +0.022 / +0.019; with exponent 1.0 +0.164 / +0.170, 1.2
+      // -0.137 / -0.133.
+      if (textured) {
+        EXPECT_LT(std::abs(r.divided_raw_signed / std::max(1, r.divided_raw)), 0.08) << file << " f/" << f_number;
+      }
       EXPECT_GE(r.found, (textured ? 0.955 : 0.99) * lit) << file << " f/" << f_number;
       EXPECT_LE(r.over, 0.03 * lit) << file << " f/" << f_number;
       // A divided point's uncertainty (about two standard errors) covers its error as often as the others'
