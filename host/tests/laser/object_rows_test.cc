@@ -45,6 +45,9 @@ struct ObjectRows {
   int within = 0;
   // Over 1 px by cause, each row once, first cause first.
   int glint = 0, albedo = 0, albedo_unflagged = 0, weak = 0, line_end = 0, steep = 0, rest = 0;
+  // The same rows by the finer causes of CauseOf (deliverable 1 of issue 15's object rows), and how many
+  // of each had an uncertainty_px at least their distance across (covered).
+  std::map<std::string, std::pair<int, int>> by_cause;
   // Not found by cause.
   int on_other = 0;  // the row's point is on another line (the table's, a reflection)
   int low_contrast = 0, too_narrow = 0, too_wide = 0, off_saturated = 0, stronger_rejected = 0, other = 0;
@@ -55,6 +58,10 @@ struct ObjectRows {
   std::vector<char>
       divided;  // of the found ones: kFlagAlbedoEdge  // their uncertainty (px), distance across
   int dumped = 0;
+  // The rows the per-row extractor (no smoothing) divided: count, sum of the signed error towards the
+  // laser-off row's brighter side, squared error, over 1 px.
+  int divided_raw = 0, divided_raw_over = 0;
+  double divided_raw_signed = 0, divided_raw_squared = 0;
 };
 
 // The laser-off row changes inside [first, last] by more than the extractor's albedo gate asks (a looser
@@ -122,6 +129,28 @@ bool Dump(const char* kind) {
   return v != nullptr && std::string(v) == kind;
 }
 
+// A found row over 1 px across, by its first cause in this order: a glint (or its skirt); the row's own
+// estimate (no smoothing, no steep recentring) was within 1 px and the steep recentring or the smoothing
+// moved it; the albedo divided out; another candidate in the row (kFlagMultiplePeaks / StrongerRejected:
+// the wrong one may have been chosen); saturated (notch-filled when kFlagNotched); the object's line ends
+// within 4 rows (a rim, a silhouette, an occlusion boundary: the line jumps); steep (the true line moves
+// more than 2 px per row); weak (peak < 30 DN); texture under the line not divided; else unexplained.
+std::string CauseOf(const LinePoint& p, double raw_across, double unsteep_across, bool end, bool steep,
+                    bool texture, bool raw_moved) {
+  if (p.flags & kFlagGlint) return "glint or its skirt";
+  if (unsteep_across <= 1.0 && raw_across > 1.0) return "steep recentring moved it";
+  if (raw_across <= 1.0) return "smoothing moved it";
+  if (p.flags & kFlagAlbedoEdge) return raw_moved ? "albedo divided, smoothed" : "albedo divided, not smoothed";
+  if (p.flags & (kFlagMultiplePeaks | kFlagStrongerRejected)) return "another candidate in the row";
+  if (p.flags & kFlagNotched) return "saturated, notch filled";
+  if (p.flags & kFlagSaturated) return "saturated";
+  if (end) return "line ends within 4 rows (edge)";
+  if (steep) return "steep (> 2 px per row)";
+  if (p.peak < 30) return "weak (< 30 DN)";
+  if (texture) return "texture not divided";
+  return "unexplained";
+}
+
 ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int steps) {
   ObjectRows out;
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
@@ -133,6 +162,12 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
   if (!renderer.ok()) return out;
   const ExtractOptions options;
   LineExtractor extractor(options);
+  // The row's own estimates: no smoothing (steep recentring on), and neither.
+  ExtractOptions raw_options = options, unsteep_options = options;
+  raw_options.smooth_half_rows = 0;
+  unsteep_options.smooth_half_rows = 0;
+  unsteep_options.steep_across = false;
+  LineExtractor raw_extractor(raw_options), unsteep_extractor(unsteep_options);
   for (int step = 0; step < steps; ++step) {
     const double angle = step * 2.0 * 3.14159265358979323846 / steps;
     const sim::RenderedStep frames =
@@ -141,8 +176,10 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
     cv::extractChannel(frames.frames[2], off, 2);
     for (int k = 0; k < 2; ++k) {
       const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
-      Line line;
+      Line line, raw_line, unsteep_line;
       EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
+      EXPECT_TRUE(raw_extractor.Extract(frames.frames[k], frames.frames[2], &raw_line).ok());
+      EXPECT_TRUE(unsteep_extractor.Extract(frames.frames[k], frames.frames[2], &unsteep_line).ok());
       cv::Mat on;
       cv::extractChannel(frames.frames[k], on, 2);
       std::map<int, std::vector<double>> all_by_row, object_by_row;
@@ -152,6 +189,32 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
       }
       std::map<int, size_t> point_of_row;
       for (size_t i = 0; i < line.points.size(); ++i) point_of_row[line.points[i].row] = i;
+      // A row's distance across in another line (1e9 when that line has no point in the row).
+      auto across_in = [&](const Line& other, int row) {
+        for (const LinePoint& q : other.points)
+          if (q.row == row) return pipeline::DistanceAcrossLine(q.column, row, object_by_row);
+        return 1e9;
+      };
+      for (const LinePoint& q : unsteep_line.points) {
+        if (!(q.flags & kFlagAlbedoEdge)) continue;
+        const auto t = object_by_row.find(q.row);
+        if (t == object_by_row.end() || t->second.size() != 1) continue;
+        const double true_column = t->second[0];
+        if (std::abs(q.column - true_column) > 3.0) continue;
+        const uint8_t* b = off.ptr<uint8_t>(q.row);
+        const int c = static_cast<int>(std::lround(true_column));
+        if (c < 8 || c + 8 >= off.cols) continue;
+        int left = 0, right = 0;
+        for (int i = 1; i <= 6; ++i) {
+          left += b[c - i];
+          right += b[c + i];
+        }
+        const double e = q.column - true_column;
+        ++out.divided_raw;
+        out.divided_raw_signed += right > left ? e : -e;
+        out.divided_raw_squared += e * e;
+        out.divided_raw_over += std::abs(e) > 1.0;
+      }
       for (const auto& [row, columns] : object_by_row) {
         ++out.lit;
         const uint8_t* a = on.ptr<uint8_t>(row);
@@ -181,6 +244,9 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
         const double across = pipeline::DistanceAcrossLine(p.column, row, object_by_row);
         if (across > 3.0) {  // the point is on another line
           ++out.on_other;
+          auto& cause = out.by_cause["on another line (> 3 px: the table's, a second line)"];
+          ++cause.first;
+          cause.second += p.uncertainty_px >= across;
           if (Dump("other") && out.dumped++ < 40)
             DumpRow("on another line", a, b, on.cols, row, columns[0], p.column);
           continue;
@@ -211,6 +277,13 @@ ObjectRows MeasureObjectRows(const std::string& scene_file, double f_number, int
           steep = steep || move > 2.0;
         }
         const double half = 0.5 * std::max(4.0f, p.width) + 3.0;
+        {
+          auto& cause = out.by_cause[CauseOf(p, across_in(raw_line, row), across_in(unsteep_line, row), end,
+                                             steep, TextureUnder(b, on.cols, nearest, half),
+                                             std::abs(across_in(raw_line, row) - across) > 0.01)];
+          ++cause.first;
+          cause.second += p.uncertainty_px >= across;
+        }
         if (p.flags & kFlagGlint) {
           ++out.glint;
         } else if (p.flags & kFlagAlbedoEdge) {
@@ -409,6 +482,216 @@ TEST(RealFramesTest, AlbedoStepOnABlackLevelDarkCellIsDividedOut) {
   EXPECT_LT(std::sqrt(sum2 / n), 0.5 * std::sqrt(plain_sum2 / n));
 }
 
+// Issue 15: the albedo division's bias. The webcam blurs the product of the albedo and the line (optics,
+// demosaicing, 4:2:0 JPEG; ~2 px in the red channel), and the laser-off frame shows the albedo blurred the
+// same way: dividing by that blurred row leaves part of the albedo's contrast in, and the centre stays
+// pulled towards the bright side. The division's exponent (kAlbedoExponent, 1.1) takes that bias out. Rows
+// of a line of sigma 3.4 px (the webcam preset's) over an albedo step 0.9 / 0.09 within 3 px of its centre,
+// blurred 2 px after the product, 1 DN noise, no speckle (the bias is what is measured): the divided
+// points' mean error towards the bright side. Measured (deterministic): exponent 1.0 +0.169 px, 1.1
+// -0.118 px, 1.2 -0.412 px. On the rendered textured set the bias is gone at 1.1 (WebcamObjectRowsByCause
+// checks it there, with a wider margin); here, with no speckle and a sharper step, at ~1.05.
+TEST(RealFramesTest, AlbedoDivisionIsUnbiasedUnderTheWebcamBlur) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> centre_of(50.0, 70.0), step_offset(-3.0, 3.0);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const int rows = 400, cols = 128;
+  const double sigma = 3.4;
+  cv::Mat on(rows, cols, CV_8UC1), off(rows, cols, CV_8UC1);
+  std::vector<double> centre(rows);
+  std::vector<bool> bright_left(rows);
+  for (int r = 0; r < rows; ++r) {
+    const double c = centre_of(rng);
+    centre[static_cast<size_t>(r)] = c;
+    const double step_at = c + step_offset(rng);
+    bright_left[static_cast<size_t>(r)] = r % 2 == 0;
+    cv::Mat lit(1, cols, CV_64F), ambient(1, cols, CV_64F);
+    for (int x = 0; x < cols; ++x) {
+      const double albedo = (x < step_at) == bright_left[static_cast<size_t>(r)] ? 0.9 : 0.09;
+      const double laser = 220.0 * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
+      lit.at<double>(0, x) = albedo * (laser + 60.0);
+      ambient.at<double>(0, x) = albedo * 60.0;
+    }
+    cv::GaussianBlur(lit, lit, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
+    cv::GaussianBlur(ambient, ambient, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
+    for (int x = 0; x < cols; ++x) {
+      on.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(lit.at<double>(0, x) + noise(rng));
+      off.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(ambient.at<double>(0, x) + noise(rng));
+    }
+  }
+  ExtractOptions per_row;
+  per_row.smooth_half_rows = 0;
+  per_row.noise_dn = 1.4;
+  auto line = ExtractLine(on, off, per_row);
+  ASSERT_TRUE(line.ok());
+  int divided = 0;
+  double towards_bright = 0, sum2 = 0;
+  for (const LinePoint& p : line->points) {
+    if (!(p.flags & kFlagAlbedoEdge)) continue;
+    const double e = p.column - centre[static_cast<size_t>(p.row)];
+    ++divided;
+    towards_bright += bright_left[static_cast<size_t>(p.row)] ? -e : e;
+    sum2 += e * e;
+  }
+  ASSERT_GT(divided, rows * 8 / 10);
+  const double bias = towards_bright / divided;
+  std::printf("albedo division under a 2 px blur: %d rows divided, mean error towards the bright side %+.3f px, "
+              "rms %.3f px\n",
+              divided, bias, std::sqrt(sum2 / divided));
+  EXPECT_LT(std::abs(bias), 0.15);
+}
+
+// Issue 15: the textured object's rows that no estimate finds (below the detection threshold; ~4 DN in
+// the frames). Is their signal above the noise at all? The same steps rendered twice, as the scene has them
+// and with no sensor noise, no speckle and no ambient change between the frames (the clean difference is
+// the laser's light alone, JPEG and blur kept): for each object row the extractor missed, the clean
+// difference's highest within 3 px of the true line, against the frame's detection threshold and noise.
+TEST(ObjectRowsTest, TexturedFaintRowsSignal) {
+  const int steps = EnvInt("ROTOSCAN_OBJECT_ROWS_STEPS", 3);
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/textured-webcam.json"));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  for (sim::LaserModel& laser : scene->laser) laser.f_number = 4.0;
+  sim::Scene clean = *scene;
+  clean.sensor.noise = false;
+  clean.ambient_change = 0.0;
+  clean.ambient_flicker = 0.0;
+  for (sim::LaserModel& laser : clean.laser) {
+    laser.f_number = 0.0;
+    laser.speckle_contrast = 0.0;
+  }
+  auto renderer = sim::Renderer::Create(*scene);
+  auto clean_renderer = sim::Renderer::Create(clean);
+  ASSERT_TRUE(renderer.ok() && clean_renderer.ok());
+  LineExtractor extractor{ExtractOptions{}};
+  std::vector<int> clean_peaks, found_clean_peaks, run_lengths, run_columns;
+  int missed = 0, lit = 0, seeded_rows = 0;
+  std::vector<double> segment_snr, segment_false;
+  double threshold_sum = 0, noise_sum = 0;
+  int frames = 0;
+  for (int step = 0; step < steps; ++step) {
+    const double angle = step * 2.0 * 3.14159265358979323846 / steps;
+    const uint64_t seed = sim::FrameSeed(scene->seed, 0, step, 0);
+    const sim::RenderedStep frames_now = (*renderer)->RenderStep(angle, seed, {true, true, true, false});
+    const sim::RenderedStep frames_clean = (*clean_renderer)->RenderStep(angle, seed, {true, true, true, false});
+    cv::Mat clean_off, noisy_off, other_off;
+    cv::extractChannel(frames_clean.frames[2], clean_off, 2);
+    cv::extractChannel(frames_now.frames[2], noisy_off, 2);
+    // A second laser-off frame of the same step (another seed): the pair has no laser, so what the
+    // segment sums below find in it is false.
+    cv::extractChannel((*renderer)->RenderStep(angle, seed + 7919, {false, false, true, false}).frames[2], other_off, 2);
+    for (int k = 0; k < 2; ++k) {
+      Line line;
+      ASSERT_TRUE(extractor.Extract(frames_now.frames[k], frames_now.frames[2], &line).ok());
+      threshold_sum += line.stats.threshold_dn;
+      noise_sum += line.stats.noise_dn;
+      ++frames;
+      cv::Mat clean_on;
+      cv::extractChannel(frames_clean.frames[k], clean_on, 2);
+      std::map<int, double> object_row;
+      for (const bundle::LinePoint& t : (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle))
+        if (t.object != 0) object_row.emplace(t.row, t.column);
+      std::map<int, bool> has_point;
+      for (const LinePoint& p : line.points) has_point[p.row] = true;
+      // The missed rows' runs (consecutive object rows without a point), and whether a row next to the
+      // run has a point on the object's line (a stretch a gap filler could go on from).
+      for (auto it = object_row.begin(); it != object_row.end(); ++it) {
+        if (has_point.count(it->first) != 0) continue;
+        if (it != object_row.begin() && std::prev(it)->first == it->first - 1 &&
+            has_point.count(std::prev(it)->first) == 0)
+          continue;  // not the run's first row
+        auto end = it;
+        while (std::next(end) != object_row.end() && std::next(end)->first == end->first + 1 &&
+               has_point.count(std::next(end)->first) == 0)
+          ++end;
+        const bool seeded = (it != object_row.begin() && has_point.count(it->first - 1) != 0) ||
+                            has_point.count(end->first + 1) != 0;
+        const int length = end->first - it->first + 1;
+        run_lengths.push_back(length);
+        seeded_rows += seeded ? length : 0;
+        const double columns = std::abs(end->second - it->second);
+        run_columns.push_back(static_cast<int>(columns));
+      }
+      for (const auto& [row, column] : object_row) {
+        ++lit;
+        const uint8_t* a = clean_on.ptr<uint8_t>(row);
+        const uint8_t* b = clean_off.ptr<uint8_t>(row);
+        int high = 0;
+        for (int i = std::max(0, static_cast<int>(column) - 3);
+             i <= std::min(clean_on.cols - 1, static_cast<int>(column) + 3); ++i)
+          high = std::max(high, int{a[i]} - int{b[i]});
+        if (has_point.count(row) != 0) {
+          found_clean_peaks.push_back(high);
+          continue;
+        }
+        ++missed;
+        clean_peaks.push_back(high);
+        // The difference summed over the row's segment of the true line (from the true column half a row
+        // above to half a row below, 1 px either side): what a filter along the line's direction sees in
+        // this row, in the laser frame and in the laser-off pair, in units of its noise.
+        const auto up = object_row.find(row - 1), down = object_row.find(row + 1);
+        const double from_c = up != object_row.end() ? 0.5 * (up->second + column) : column,
+                     to_c = down != object_row.end() ? 0.5 * (down->second + column) : column;
+        const int c0 = std::max(0, static_cast<int>(std::min(from_c, to_c)) - 1),
+                  c1 = std::min(clean_on.cols - 1, static_cast<int>(std::max(from_c, to_c)) + 1);
+        cv::Mat on_now;
+        cv::extractChannel(frames_now.frames[k].row(row), on_now, 2);
+        const uint8_t* an = on_now.ptr<uint8_t>(0);
+        const uint8_t* bn = noisy_off.ptr<uint8_t>(row);
+        const uint8_t* bo = other_off.ptr<uint8_t>(row);
+        double with = 0, without = 0;
+        for (int i = c0; i <= c1; ++i) {
+          with += int{an[i]} - int{bn[i]};
+          without += int{bo[i]} - int{bn[i]};
+        }
+        const double sd = line.stats.noise_dn * std::sqrt(c1 - c0 + 1.0);
+        segment_snr.push_back(with / sd);
+        segment_false.push_back(without / sd);
+      }
+    }
+  }
+  ASSERT_GT(missed, 20);
+  std::sort(clean_peaks.begin(), clean_peaks.end());
+  std::sort(found_clean_peaks.begin(), found_clean_peaks.end());
+  const double threshold = threshold_sum / frames, noise = noise_sum / frames;
+  int above = 0;
+  for (int v : clean_peaks) above += v >= threshold;
+  std::printf(
+      "textured f/4, %d steps x 2 lasers: %d object rows, %d without a point; their clean difference's highest "
+      "within 3 px of the true line: median %d, 90th percentile %d, max %d DN (rows with a point: median %d, "
+      "10th percentile %d); detection threshold %.1f DN, noise %.2f DN; %d of the missed rows' clean signal at or "
+      "above the threshold\n",
+      steps, lit, missed, clean_peaks[clean_peaks.size() / 2], clean_peaks[clean_peaks.size() * 9 / 10],
+      clean_peaks.back(), found_clean_peaks[found_clean_peaks.size() / 2],
+      found_clean_peaks[found_clean_peaks.size() / 10], threshold, noise, above);
+  std::printf("  the missed rows in %zu runs of consecutive object rows (rows, columns spanned):", run_lengths.size());
+  for (size_t i = 0; i < run_lengths.size(); ++i) std::printf(" %d/%d", run_lengths[i], run_columns[i]);
+  std::printf("; %d of the %d rows in a run next to a found point of the object's line\n", seeded_rows, missed);
+  std::sort(segment_snr.begin(), segment_snr.end());
+  std::sort(segment_false.begin(), segment_false.end());
+  int false_over_3 = 0, true_over_3 = 0;
+  for (double v : segment_false) false_over_3 += v >= 3.0;
+  for (double v : segment_snr) true_over_3 += v >= 3.0;
+  std::printf(
+      "  the row's segment of the true line summed, in noise units: laser frame median %.1f, 10th percentile "
+      "%.1f (%d of %d at >= 3); laser-off pair median %.1f, max %.1f (%d at >= 3)\n",
+      segment_snr[segment_snr.size() / 2], segment_snr[segment_snr.size() / 10], true_over_3, missed,
+      segment_false[segment_false.size() / 2], segment_false.back(), false_over_3);
+  // Measured, 3 steps: 85 rows missed, clean highest median 4, 90th percentile 7, max 10 DN; threshold
+  // 11.5 DN, noise 1.81 DN; none at or above the threshold. No per-row estimate finds them (6 sigma is where
+  // false detections stop: DetectionFloorTest), but the light is there, ~2 sigma per pixel: a filter summing
+  // the difference along the line's direction over L pixels gains sqrt(L).
+  // 8 steps: 224 rows in 19 runs of 12-16 rows spanning 100-140 columns (a nearly horizontal stretch, ~8.5 px
+  // per row), every run next to a found point of the object's line; the row's segment of the true line
+  // summed: median 4.0 noise units in the laser frame (141 of 224 rows at >= 3), 0.2 in the laser-off pair
+  // (3 of 224 at >= 3, max 3.9). A gap filler that goes on along the stretch's curve from its found ends
+  // would find most of them (issue 15: the table's weak line, the same step).
+  EXPECT_GE(segment_snr[segment_snr.size() / 2], 3.0);
+  EXPECT_LT(std::abs(segment_false[segment_false.size() / 2]), 1.0);
+  EXPECT_LT(clean_peaks[clean_peaks.size() / 2], threshold);
+  EXPECT_GT(clean_peaks[clean_peaks.size() / 2], noise);
+  EXPECT_LE(above, missed / 10);
+}
+
 TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
   const int steps = EnvInt("ROTOSCAN_OBJECT_ROWS_STEPS", 3);
   for (const char* file : {"glossy-webcam.json", "textured-webcam.json"}) {
@@ -426,6 +709,12 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
           "%d, steep (the true line > 2 px per row) %d, weak (peak < 30 DN) %d, texture under the line not "
           "divided %d, strong unflagged %d\n",
           r.glint, r.albedo, r.line_end, r.steep, r.weak, r.albedo_unflagged, r.rest);
+      std::printf("  divided rows per row (no smoothing, no steep): %d, mean towards the bright side %+.3f px, rms %.3f px, over 1 px %d\n",
+                  r.divided_raw, r.divided_raw_signed / std::max(1, r.divided_raw),
+                  std::sqrt(r.divided_raw_squared / std::max(1, r.divided_raw)), r.divided_raw_over);
+      std::printf("  > 1 px across (and > 3 px) by first cause: rows, of which uncertainty_px covered the error:");
+      for (const auto& [cause, n] : r.by_cause) std::printf(" %s %d (%d);", cause.c_str(), n.first, n.second);
+      std::printf("\n");
       std::printf(
           "  not found %d: point on another line %d, below threshold %d, candidates too narrow %d, too wide "
           "%d, off frame saturated %d, a much stronger one rejected %d, other %d\n",
@@ -453,8 +742,16 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
                   r.uncertainty_across.size(), beyond_divided, divided);
       // Measured, 3 steps (README): glossy f/4 99.8 % found, 2.6 % over 1 px; f/2.4 99.5 %, 1.6 %; textured
       // f/4 96.0 %, 2.3 %; f/2.4 96.0 %, 2.3 % (before this session's rules: textured 95.9 %, 4.0 % and
-      // 96.0 %, 3.8 %). The limits keep a margin for the 3 steps' spread.
+      // 96.0 %, 3.8 %). The limits keep a margin for the 3 steps' spread. With the albedo division's
+      // exponent 1.1 (tenth session): glossy 99.8 %, 2.5 %; 99.5 %, 1.7 %; textured 96.0 %, 1.8 %; 96.0 %,
+      // 1.7 %.
       const bool textured = std::string(file) == "textured-webcam.json";
+      // The albedo division leaves no bias towards the brighter side (kAlbedoExponent): measured 3 steps
+      // +0.016 / +0.020 px (f/4 / f/2.4), 8 steps +0.022 / +0.019; with exponent 1.0 +0.164 / +0.170, 1.2
+      // -0.137 / -0.133.
+      if (textured) {
+        EXPECT_LT(std::abs(r.divided_raw_signed / std::max(1, r.divided_raw)), 0.08) << file << " f/" << f_number;
+      }
       EXPECT_GE(r.found, (textured ? 0.955 : 0.99) * lit) << file << " f/" << f_number;
       EXPECT_LE(r.over, 0.03 * lit) << file << " f/" << f_number;
       // A divided point's uncertainty (about two standard errors) covers its error as often as the others'
@@ -467,7 +764,9 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
       // half (tenths 5-9) at most 20 % of them. Measured: textured f/4 24 in the worst tenth against at most
       // 16, better half 2 of 54; f/2.4 36 against 5, 0 of 54; glossy f/4 19 against 6, 4 of 33; f/2.4 13
       // against 4, 1 of 20. (With the division's residual not widened for a narrow line: textured f/4 20
-      // of 66 in the better half, f/2.4 22 of 72.)
+      // of 66 in the better half, f/2.4 22 of 72.) With the exponent 1.1: textured f/4 29 against at most
+      // 6, better half 3 of 41; f/2.4 38 against 1, 0 of 39; glossy f/4 18 against 6, 4 of 32; f/2.4 14
+      // against 5, 1 of 22.
       int better_half = 0;
       for (int d = 1; d < 10; ++d) {
         EXPECT_GT(by_quality.over[0], by_quality.over[d]) << file << " f/" << f_number << " tenth " << d;

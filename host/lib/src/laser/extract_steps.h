@@ -54,6 +54,17 @@ constexpr int kAlbedoEdgeSpanPx = 4;
 constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
 constexpr double kAlbedoBlurPx = 2.0;
+// The difference is divided by the blurred laser-off row to this power, not to 1: the blurred row
+// understates the albedo's contrast inside the line (the blur of a product is not the product of the
+// blurs), and the centre of the plain ratio stayed pulled towards the bright side. On issue 15's textured
+// set (3 steps x 2 lasers, per row, no smoothing) the divided rows' mean error towards the laser-off
+// row's brighter side was, by exponent: 0.8 +0.4 px (not printed: > 1 px after smoothing 153 of 2,316
+// rows at f/4); 1.0 +0.164 / +0.170 px (f/4 / f/2.4); 1.05 +0.091 / +0.095; 1.1 +0.016 / +0.020;
+// 1.15 -0.061 / -0.056; 1.2 -0.137 / -0.133; 1.4 -0.445. 1.1 takes the bias out; the object's rows over
+// 1 px across after smoothing (ObjectRowsTest) went 54 -> 41 at f/4 and 54 -> 39 at f/2.4 (1.15: 39 / 37,
+// but the per-row RMS rises: 0.654 -> 0.674 px). A bias survives the along-line smoothing; the scatter
+// does not. With the exponent, kAlbedoBlurPx 2 stays the best blur (1.5: 53 / 49 rows; 2.5: 101 / 88).
+constexpr double kAlbedoExponent = 1.1;
 constexpr int kAlbedoMaxWindow = 256;
 // The division's residual (px, about two standard errors), added to a divided point's uncertainty in
 // place of the texture term (ScoreAlbedoDivision): on issue 15's textured set (3 steps x 2 lasers, f/4)
