@@ -20,30 +20,36 @@
 // kGapSideShift half widths to either side (a level change or a broad glow sums to zero). The row is filled
 // when that contrast is at least min_z (kGapMinZ, 6) times its noise, the frame's sigma (noise_dn) over the
 // square root of the boxes' pixel counts times kGapCorrelation, and each half of the window along the
-// line (before and after the row's point) reaches kGapHalfZ on its own: the line goes on through the row
-// and does not end at it (a shadow's edge). Its centre: the centre of mass across the curve of the
+// line (before and after the row's point) and the row's own pixels reach kGapHalfZ on their own: the line
+// goes on through the row and does not end at it (a shadow's edge), and the row itself holds its light
+// (ExtractTest.RowsWithoutLaserGiveNoPoints: a line on every other row only). Its centre: the centre of mass across the curve of the
 // difference above one sigma within the line's width (two iterations, as steep.cc), combined with the
 // curve's own (offset 0) by their inverse variances.
 //
-// The threshold, as the row pass's 6 sigma (DetectionFloorTest), is where false rows stop on laser-off
-// pairs (GapFillTest.NoRowsFilledOnLaserOffPairs: the gaps of real stretches, rows 3 and 4 of every 7
-// punched out, offered to a pair of laser-off frames of the same step): on the three webcam scenes, 2
-// steps, 1,531 rows offered, min_z 3 / 4 / 5 / 6 fill 12 / 12 / 9 / 0; on synthetic white-noise pairs, 511
-// offered, none at any of these. kGapCorrelation 3 stands for the correlation of neighbouring pixels of a
-// demosaiced MJPEG frame (a plain 8 x 4 box's sum varies 11 times N sigma^2 on those pairs, with their
-// rolling-shutter and ambient level changes, which the side boxes take out); the sweep above is what
-// sets the threshold. Chosen on the webcam sets (8 steps, TableRowsTest; table rows found / over 1 px
-// across, glossy and textured): the residual test at 0.35 (steep.cc's) 96.5 / 86.4 % found, at 0.8 97.3 /
-// 90.8 %; at least 2 points a side instead of 3, 97.9 / 93.2 %; gaps up to 33 rows instead of 17: textured
-// 94.3 % found but 79 rows over 1 px instead of 59; the centre from the curve alone: textured 97 rows
-// over 1 px, from the centre of mass alone 61, combined 63 (and on GapFillTest's synthetic line, RMS
-// across 0.43 / 0.59 / 0.52 px).
+// The threshold, as the row pass's 6 sigma (DetectionFloorTest): GapFillTest.NoRowsFilledOnLaserOffPairs
+// offers the gaps of real stretches (rows 3 and 4 of every 7 punched out) to a pair of laser-off frames of
+// the same step (no laser: every filled row is false). On the three webcam scenes, 2 steps, 1,531 rows
+// offered: min_z 3 / 4 / 5 / 6 filled 12 / 12 / 9 / 0 before the row's own test (below), 0 / 0 / 0 / 0
+// with it; on synthetic white-noise pairs none at any of these. kGapCorrelation 3 stands for the
+// correlation of neighbouring pixels of a demosaiced MJPEG frame (a plain 8 x 4 box's sum varies 11 times
+// N sigma^2 on those pairs, with their rolling-shutter and ambient level changes, which the side boxes
+// take out); 6 keeps the margin the row pass has.
+// Chosen on the webcam sets (8 steps, the first frames' seeds of TableRowsTest; table rows found, glossy /
+// textured, f/4): the residual test at 0.35 (steep.cc's) 96.5 / 86.4 % found, at 0.8 97.3 / 90.8 %; at
+// least 2 points a side instead of 3, 97.9 / 93.2 %; gaps up to 33 rows instead of 17: textured 94.3 %
+// found but 79 rows over 1 px across instead of 59. The centre: from the curve alone, textured 97 rows over
+// 1 px; from the centre of mass alone 61; combined 63 while the curve's variance was its residual over the
+// points' count, and the filled rows' own error: 21 of 725 over 1 px at f/2.4 (both sets), RMS 0.38 px
+// across; with the curve's variance one point's (its residual per degree of freedom, as now) 3 of 725,
+// RMS 0.31 px.
 //
 // A filled point's uncertainty (about two standard errors along the row): the combined centre's standard
-// error across (the centre of mass's: sigma times the weights' spread over their sum, times the pixels'
-// correlation; the curve's: the fit's residual over the points' count), times the line's length factor L =
-// sqrt(1 + s^2), and at least kGapMinUncertaintyPx; its quality kGapQuality / (1 + u^2): a weaker signal
-// than a found row's. Its peak is the matched filter's contrast (DN per pixel), its width the stretch's.
+// error across, times the line's length factor L = sqrt(1 + s^2), at least kGapMinUncertaintyPx. The
+// centre of mass's variance: sigma^2 times the weights' spread over their sum squared, times
+// kGapPixelVariance (the measured 11: with kGapCorrelation's 3 the filled rows' error along their row was
+// beyond the uncertainty in 23 % of them, with 11 in 5-7 %: 48 of 725 at f/2.4, 43 of 805 at f/4, as two
+// standard errors should). Its quality kGapQuality / (1 + u^2): a weaker signal than a found row's. Its
+// peak is the matched filter's contrast (DN per pixel), its width the stretch's.
 //
 // Runs only on frames whose noise was measured on lit pixels (extract.cc), as steep.cc: on the
 // machine-vision preset's clean frames the row pass finds what there is.
@@ -69,6 +75,9 @@ constexpr double kGapAlongPx = 4.0;
 constexpr double kGapSideShift = 3.0;
 constexpr double kGapHalfZ = 3.0;
 constexpr double kGapCorrelation = 3.0;
+// For the centre of mass's variance: a box's sum varies kGapPixelVariance times N sigma^2 on the webcam
+// scenes' laser-off pairs (GapFillTest prints it: 11.3).
+constexpr double kGapPixelVariance = 11.0;
 constexpr double kGapMinUncertaintyPx = 0.5;
 constexpr double kGapQuality = 0.5;
 
@@ -141,9 +150,9 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
     if (residual2 > kGapMaxResidual * kGapMaxResidual * (1.0 + max_length) * (1.0 + max_length) *
                         static_cast<double>(dof))
       continue;
-    // The curve's error along the row at a missing row: the residual's RMS over the points' count (a
-    // fair guess for an interpolation between them).
-    const double fit_sd = std::sqrt(residual2 / static_cast<double>(dof) / static_cast<double>(hi - lo + 1));
+    // The curve's error along the row at a missing row: taken as one of its points' (the residual's RMS
+    // per degree of freedom): a gap's middle is as far from the points as the curve gets.
+    const double fit_sd = std::sqrt(residual2 / static_cast<double>(dof));
     // The line's width across it: the stretch's median width along the rows over L.
     std::nth_element(widths.begin(), widths.begin() + static_cast<long>(widths.size() / 2), widths.end());
     const double width_across = widths[widths.size() / 2];
@@ -167,6 +176,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       // each split into the halves before and after the row's point along the line.
       double sum[2][3] = {{0, 0, 0}, {0, 0, 0}};  // [half][centre, left, right]
       int count[2][3] = {{0, 0, 0}, {0, 0, 0}};
+      double own[3] = {0, 0, 0};  // the row's own pixels of the three boxes
+      int own_count[3] = {0, 0, 0};
       for (int rr = r_first; rr <= r_last; ++rr) {
         const double cc = curve.ColumnAt(rr);
         const int c_first = std::max(0, static_cast<int>(std::floor(cc - col_reach)));
@@ -174,20 +185,27 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         for (int c = c_first; c <= c_last; ++c) {
           double across, along;
           across_along(rr, c, &across, &along);
-          if (std::abs(along) > kGapAlongPx) continue;
           const int box = std::abs(across) <= half                               ? 0
                           : std::abs(across + kGapSideShift * half) <= half ? 1
                           : std::abs(across - kGapSideShift * half) <= half ? 2
                                                                              : -1;
           if (box < 0) continue;
+          const int d = SignedDifference(on, off, channel, rr, c);
+          if (rr == r) {  // the row's own pixels, at any distance along (a steep line's sides lie far along)
+            own[box] += d;
+            ++own_count[box];
+          }
+          if (std::abs(along) > kGapAlongPx) continue;
           const int h = along < 0 ? 0 : 1;
-          sum[h][box] += SignedDifference(on, off, channel, rr, c);
+          sum[h][box] += d;
           ++count[h][box];
         }
       }
       // Contrast of the centre box over the sides' mean, per pixel, and its noise; over the whole window
-      // (at least min_z times its noise) and over each half (at least kGapHalfZ: the line goes on through
-      // the row, it does not end at it, as at a shadow's edge).
+      // (at least min_z times its noise), over each half (at least kGapHalfZ: the line goes on through
+      // the row, it does not end at it, as at a shadow's edge) and over the row's own pixels (kGapHalfZ
+      // too: the row holds light of the line, not only its neighbours: rows where the laser is hidden, a
+      // laser-off frame saturated, stay empty).
       auto z_of = [&](double s0, double s1, double s2, int n0, int n1, int n2) {
         if (n0 < 2 || n1 < 2 || n2 < 2) return 0.0;
         const double contrast = s0 / n0 - 0.5 * (s1 / n1 + s2 / n2);
@@ -197,7 +215,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
                             count[0][0] + count[1][0], count[0][1] + count[1][1], count[0][2] + count[1][2]);
       if (z < min_z) continue;
       if (z_of(sum[0][0], sum[0][1], sum[0][2], count[0][0], count[0][1], count[0][2]) < kGapHalfZ ||
-          z_of(sum[1][0], sum[1][1], sum[1][2], count[1][0], count[1][1], count[1][2]) < kGapHalfZ)
+          z_of(sum[1][0], sum[1][1], sum[1][2], count[1][0], count[1][1], count[1][2]) < kGapHalfZ ||
+          z_of(own[0], own[1], own[2], own_count[0], own_count[1], own_count[2]) < kGapHalfZ)
         continue;
       // The point's peak: the centre box's mean over the sides' (DN).
       const int n_centre = count[0][0] + count[1][0];
@@ -238,7 +257,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       // weights, with the weights' spread standing in for the pixels' (times their count), and the pixels'
       // correlation; the curve's own error across. The two estimates of the centre (the curve's, t = 0, and
       // the centre of mass's) are combined by their inverse variances.
-      const double com_var = std::max(1e-6, kGapCorrelation * noise_dn * noise_dn * spread2 *
+      const double com_var = std::max(1e-6, kGapPixelVariance * noise_dn * noise_dn * spread2 *
                                                 (2.0 * window * 2.0 * kGapAlongPx) / (sum_w * sum_w));
       const double fit_var = std::max(1e-6, (fit_sd / length) * (fit_sd / length));
       const double var = 1.0 / (1.0 / com_var + 1.0 / fit_var);
