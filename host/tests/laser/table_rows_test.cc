@@ -54,6 +54,8 @@ struct PartRows {
   int over_filled = 0, over_end = 0, over_junction = 0, over_beside = 0, over_weak = 0, over_slope[3] = {0, 0, 0};
   int over_by_distance[3] = {0, 0, 0};
   int filled = 0;
+  int plain_missed_by_signal[4] = {0, 0, 0, 0};  // not found without the gap step, by clean peak
+  int plain_missed_in_gap = 0;
 };
 
 struct SetRows {
@@ -132,9 +134,12 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
       no_gaps.fill_gaps = false;
       auto plain = ExtractLine(frames.frames[k], frames.frames[2], no_gaps);
       EXPECT_TRUE(plain.ok());
-      std::map<int, bool> plain_row;
+      std::map<int, bool> plain_row, plain_found;
       if (plain.ok())
-        for (const LinePoint& p : plain->points) plain_row[p.row] = true;
+        for (const LinePoint& p : plain->points) {
+          plain_row[p.row] = true;
+          plain_found[p.row] = pipeline::DistanceAcrossLine(p.column, p.row, all_by_row) <= 3.0;
+        }
       // Found rows of the table's line (a point within 3 px across of the truth).
       std::map<int, bool> found;
       for (const auto& [row, columns] : all_by_row) {
@@ -171,6 +176,15 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
                                                     frames.frames[2].at<cv::Vec3b>(row, c)[2]);
             if (peak > 0) out.missed_noisy_over_clean.push_back(noisy_peak / peak);
           }
+        }
+        if (!plain_found[row]) {
+          ++part.plain_missed_by_signal[Bin(sigmas)];
+          bool above = false, below = false;
+          for (int dr = 1; dr <= 16; ++dr) {
+            above = above || plain_found[row - dr];
+            below = below || plain_found[row + dr];
+          }
+          part.plain_missed_in_gap += above && below;
         }
         if (found[row]) {
           ++part.found;
@@ -249,6 +263,11 @@ void Print(const char* name, const PartRows& p) {
               p.lit_by_signal[0], p.lit_by_signal[1], p.lit_by_signal[2], p.lit_by_signal[3], missed,
               p.missed_by_signal[0], p.missed_by_signal[1], p.missed_by_signal[2], p.missed_by_signal[3],
               p.missed_in_gap, p.missed_beyond, p.missed_no_stretch, Median(p.signal_sigma));
+  std::printf("         without the gap step: missed %d: %d / %d / %d / %d; in a gap %d\n",
+              p.plain_missed_by_signal[0] + p.plain_missed_by_signal[1] + p.plain_missed_by_signal[2] +
+                  p.plain_missed_by_signal[3],
+              p.plain_missed_by_signal[0], p.plain_missed_by_signal[1], p.plain_missed_by_signal[2],
+              p.plain_missed_by_signal[3], p.plain_missed_in_gap);
   std::printf("         filled by the gap step %d; over 1 px: %d filled, %d at a line's end, %d where the other part's rows begin, %d beside another line, %d "
               "weak (< 6 sigma), by slope < 2 / 2-4 / > 4 px per row %d / %d / %d; across 1-2 / 2-3 / > 3 px %d / %d / "
               "%d\n",
