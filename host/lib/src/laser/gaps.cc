@@ -90,6 +90,14 @@ inline int SignedDifference(const cv::Mat& on, const cv::Mat& off, int channel, 
   return a - b;
 }
 
+// A coordinate as an index in [0, size - 1], whatever its size (a curve extrapolated far, a non-finite
+// value: no conversion of an out-of-range double to int).
+inline int ClampToIndex(double x, int size) {
+  if (!(x > 0)) return 0;
+  if (!(x < size - 1)) return size - 1;
+  return static_cast<int>(x);
+}
+
 struct Curve {
   double c0 = 0, s = 0, k = 0;  // column = c0 + s dr + k dr^2 about row r0
   int r0 = 0;
@@ -159,14 +167,15 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
     const double half = std::max(1.5, 0.5 * width_across);  // the matched filter's half width
     for (int r = p[i].row + 1; r < p[i + 1].row; ++r) {
       const double c0 = curve.ColumnAt(r);
+      if (!std::isfinite(c0) || c0 < 0 || c0 > cols - 1) continue;
       const double dr0 = r - curve.r0;
       const double s = curve.s + 2.0 * curve.k * dr0;
       const double length = std::sqrt(1.0 + s * s);
       // Across: (column - the curve's column in the pixel's row) / L; along: from the row's point.
       const double reach_across = (kGapSideShift + 1.0) * half;
       const double row_reach = (kGapAlongPx + reach_across * std::abs(s)) / length + 1.0;
-      const int r_first = std::max(0, static_cast<int>(std::floor(r - row_reach)));
-      const int r_last = std::min(rows - 1, static_cast<int>(std::ceil(r + row_reach)));
+      const int r_first = ClampToIndex(std::floor(r - row_reach), rows);
+      const int r_last = ClampToIndex(std::ceil(r + row_reach), rows);
       const double col_reach = (reach_across + kGapAlongPx) * length + 1.0;
       auto across_along = [&](int rr, int c, double* across, double* along) {
         *across = (c - curve.ColumnAt(rr)) / length;
@@ -180,8 +189,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       int own_count[3] = {0, 0, 0};
       for (int rr = r_first; rr <= r_last; ++rr) {
         const double cc = curve.ColumnAt(rr);
-        const int c_first = std::max(0, static_cast<int>(std::floor(cc - col_reach)));
-        const int c_last = std::min(cols - 1, static_cast<int>(std::ceil(cc + col_reach)));
+        const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
+        const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
         for (int c = c_first; c <= c_last; ++c) {
           double across, along;
           across_along(rr, c, &across, &along);
@@ -231,8 +240,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         double sw = 0, swt = 0, swtt = 0;
         for (int rr = r_first; rr <= r_last; ++rr) {
           const double cc = curve.ColumnAt(rr);
-          const int c_first = std::max(0, static_cast<int>(std::floor(cc - col_reach)));
-          const int c_last = std::min(cols - 1, static_cast<int>(std::ceil(cc + col_reach)));
+          const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
+          const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
           for (int c = c_first; c <= c_last; ++c) {
             double across, along;
             across_along(rr, c, &across, &along);
