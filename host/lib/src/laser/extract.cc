@@ -448,6 +448,11 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   detail::ScorePoints(terms.data(), frame, &line->points);
   detail::ScoreLineEnds(o.smooth_max_jump_px, rows, &line->points);
   stats.glints = detail::FlagGlints(terms.data(), rows, &line->points);
+  // Rows missing inside a stretch, found along its curve (gaps.cc), on the same frames as steep.cc.
+  if (o.fill_gaps && stats.noise_on_lit) {
+    stats.gap_filled = detail::FillLineGaps(on, off, channel, stats.noise_dn, &line->points);
+    stats.found += stats.gap_filled;
+  }
   // A steep line measured across itself (steep.cc), on frames whose noise was measured on lit pixels:
   // on the machine-vision preset's dark, clean frames the row's own centre is better (extract_steps.h).
   if (o.steep_across && stats.noise_on_lit) detail::RecentreSteepLines(on, off, channel, threshold, &line->points);

@@ -10,6 +10,7 @@
 //   SmoothAlongLine  smooth.cc      (public) the along-line smoothing
 //   LimitSmoothing   smooth.cc      the smoothing moves no point further than its uncertainty
 //   RecentreSteepLines steep.cc     a steep line's centre measured across the line, before the smoothing
+//   FillLineGaps     gaps.cc        rows missing inside a stretch, found along its curve by a matched filter
 //
 // The kernels these use, once per instruction set, are in kernels.h.
 #pragma once
@@ -265,5 +266,13 @@ void LimitSmoothing(const std::vector<float>& own, std::vector<LinePoint>* point
 // `channel` the laser's, `threshold` the row pass's. Returns how many moved.
 int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                        std::vector<LinePoint>* points);
+
+// After ScorePoints, before RecentreSteepLines: rows missing inside a stretch of line, looked for along the
+// stretch's curve by a matched filter over several rows (gaps.cc); `noise_dn` the frame's noise sigma.
+// A row is filled where the matched filter's contrast reaches min_z times its noise (gaps.cc). The filled
+// points are inserted in row order. Returns how many.
+constexpr double kGapMinZ = 6.0;
+int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
+                 std::vector<LinePoint>* points, double min_z = kGapMinZ);
 
 }  // namespace rotoscan::laser::detail

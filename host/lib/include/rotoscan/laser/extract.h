@@ -82,6 +82,8 @@ struct LineStats {
   double noise_dn = 0;      // background noise of the difference used for the threshold, DN (sigma)
   bool noise_on_lit = false;  // noise_dn was measured on lit pixels (or given): the lower floor applies
   double threshold_dn = 0;  // detection threshold used, DN
+  int gap_filled = 0;       // points added by ExtractOptions::fill_gaps (also in found; the row pass's
+                            // reason for their rows stays counted above)
 };
 
 struct Line {
@@ -124,6 +126,11 @@ struct ExtractOptions {
   // measured across the line from the pixels of neighbouring rows, not along its row (steep.cc); only on
   // frames whose noise was measured on lit pixels (LineStats::noise_on_lit).
   bool steep_across = true;
+  // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
+  // stretch's curve with a matched filter over several rows, a threshold on their summed difference
+  // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit
+  // pixels. Counted in LineStats::gap_filled.
+  bool fill_gaps = true;
 
   // OK, or kInvalidArgument naming the bad field.
   Status Check() const;

@@ -1,0 +1,295 @@
+// FillLineGaps (extract_steps.h): rows missing inside a stretch of line, looked for along the stretch's
+// curve with a threshold on the summed difference instead of one row's peak.
+//
+// Why (issue 15, TableRowsTest.MissedRowsBySignal): on the webcam sets the table top's line peaks at
+// ~13 DN over a noise of 1.4-1.8 DN, and its rows that the row pass misses (12 % / 32 % of the table's
+// rows, glossy / textured, 8 steps) nearly all lie in gaps between found rows of the same line, and all
+// but 2 of 1,012 carry at least 4 sigma in the noise-free render (85 % at least 6 sigma): fully developed speckle
+// takes a grain out of the line's peak (the missed rows' noisy peak is 0.75 of the clean one, median) and
+// the row falls under the 6 sigma threshold. One row's peak cannot be trusted lower (DetectionFloorTest:
+// 4 sigma gives 25 false rows in 5,760 on laser-off pairs), but the line's pixels over several rows can:
+// speckle grains average out along the line, and noise falls as the square root of the pixels summed.
+//
+// The step: for two found points at most kGapMaxRows apart whose columns join (kSteepMaxStepPx per row),
+// the points within kGapFitRows rows of the gap on either side (at least kGapMinSide each, each step
+// joined) give a parabola, column against row (least squares, as steep.cc), which must fit them as a line
+// (steep.cc's residual test, looser: kGapMaxResidual, as these points are the rows' own centres of a weak
+// steep line, before steep.cc). For each missing row, around the curve's point there: a matched filter
+// across the curve, the signed difference summed over the pixels within kGapAlongPx along the curve and
+// within the line's half width across it (a box), against the mean of the same boxes shifted by
+// kGapSideShift half widths to either side (a level change or a broad glow sums to zero). The row is filled
+// when that contrast is at least min_z (kGapMinZ, 6) times its noise, the frame's sigma (noise_dn) over the
+// square root of the boxes' pixel counts times kGapCorrelation, and each half of the window along the
+// line (before and after the row's point) and the row's own pixels reach kGapHalfZ on their own: the line
+// goes on through the row and does not end at it (a shadow's edge), and the row itself holds its light
+// (ExtractTest.RowsWithoutLaserGiveNoPoints: a line on every other row only). Its centre: the centre of mass across the curve of the
+// difference above one sigma within the line's width (two iterations, as steep.cc), combined with the
+// curve's own (offset 0) by their inverse variances.
+//
+// The threshold, as the row pass's 6 sigma (DetectionFloorTest): GapFillTest.NoRowsFilledOnLaserOffPairs
+// offers the gaps of real stretches (rows 3 and 4 of every 7 punched out) to a pair of laser-off frames of
+// the same step (no laser: every filled row is false). On the three webcam scenes, 2 steps, 1,531 rows
+// offered: min_z 3 / 4 / 5 / 6 filled 12 / 12 / 9 / 0 before the row's own test (below), 0 / 0 / 0 / 0
+// with it; on synthetic white-noise pairs none at any of these. kGapCorrelation 3 stands for the
+// correlation of neighbouring pixels of a demosaiced MJPEG frame (a plain 8 x 4 box's sum varies 11 times
+// N sigma^2 on those pairs, with their rolling-shutter and ambient level changes, which the side boxes
+// take out); 6 keeps the margin the row pass has.
+// Chosen on the webcam sets (8 steps, the first frames' seeds of TableRowsTest; table rows found, glossy /
+// textured, f/4): the residual test at 0.35 (steep.cc's) 96.5 / 86.4 % found, at 0.8 97.3 / 90.8 %; at
+// least 2 points a side instead of 3, 97.9 / 93.2 %; gaps up to 33 rows instead of 17: textured 94.3 %
+// found but 79 rows over 1 px across instead of 59. The centre: from the curve alone, textured 97 rows over
+// 1 px; from the centre of mass alone 61; combined 63 while the curve's variance was its residual over the
+// points' count, and the filled rows' own error: 21 of 725 over 1 px at f/2.4 (both sets), RMS 0.38 px
+// across; with the curve's variance one point's (its residual per degree of freedom, as now) 3 of 725,
+// RMS 0.31 px.
+//
+// A filled point's uncertainty (about two standard errors along the row): the combined centre's standard
+// error across, times the line's length factor L = sqrt(1 + s^2), at least kGapMinUncertaintyPx. The
+// centre of mass's variance: sigma^2 times the weights' spread over their sum squared, times
+// kGapPixelVariance (the measured 11: with kGapCorrelation's 3 the filled rows' error along their row was
+// beyond the uncertainty in 23 % of them, with 11 in 5-7 %: 48 of 725 at f/2.4, 43 of 805 at f/4, as two
+// standard errors should). Its quality kGapQuality / (1 + u^2): a weaker signal than a found row's. Its
+// peak is the matched filter's contrast (DN per pixel), its width the stretch's.
+//
+// Runs only on frames whose noise was measured on lit pixels (extract.cc), as steep.cc: on the
+// machine-vision preset's clean frames the row pass finds what there is.
+#include <algorithm>
+#include <cmath>
+#include <iterator>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
+#include "extract_steps.h"
+
+namespace rotoscan::laser::detail {
+namespace {
+
+// A gap of at most kGapMaxRows - 1 missing rows between two found points.
+constexpr int kGapMaxRows = 17;
+constexpr double kGapMaxResidual = 0.8;
+constexpr int kGapFitRows = 12;
+constexpr int kGapMinSide = 2;
+constexpr double kGapAlongPx = 4.0;
+constexpr double kGapSideShift = 3.0;
+constexpr double kGapHalfZ = 3.0;
+constexpr double kGapCorrelation = 3.0;
+// For the centre of mass's variance: a box's sum varies kGapPixelVariance times N sigma^2 on the webcam
+// scenes' laser-off pairs (GapFillTest prints it: 11.3).
+constexpr double kGapPixelVariance = 11.0;
+constexpr double kGapMinUncertaintyPx = 0.5;
+constexpr double kGapQuality = 0.5;
+
+// The signed difference at (row, col), with step 1's rule for a saturated laser-on pixel (steep.cc).
+inline int SignedDifference(const cv::Mat& on, const cv::Mat& off, int channel, int row, int col) {
+  const int k = col * on.channels() + channel;
+  const int a = on.ptr<uint8_t>(row)[k];
+  const int b = off.ptr<uint8_t>(row)[k];
+  if (a == 255 && b < 255) return 255 - b;
+  return a - b;
+}
+
+// A coordinate as an index in [0, size - 1], whatever its size (a curve extrapolated far, a non-finite
+// value: no conversion of an out-of-range double to int).
+inline int ClampToIndex(double x, int size) {
+  if (!(x > 0)) return 0;
+  if (!(x < size - 1)) return size - 1;
+  return static_cast<int>(x);
+}
+
+struct Curve {
+  double c0 = 0, s = 0, k = 0;  // column = c0 + s dr + k dr^2 about row r0
+  int r0 = 0;
+  double ColumnAt(int row) const {
+    const double dr = row - r0;
+    return c0 + s * dr + k * dr * dr;
+  }
+};
+
+}  // namespace
+
+int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
+                 std::vector<LinePoint>* line_points, double min_z) {
+  std::vector<LinePoint>& p = *line_points;
+  const size_t n = p.size();
+  if (n < 2 * kGapMinSide || noise_dn <= 0) return 0;
+  const int rows = on.rows, cols = on.cols;
+  auto joined = [&](size_t a, size_t b) {
+    const int gap = p[b].row - p[a].row;
+    return gap >= 1 && gap <= kGapMaxRows && std::abs(p[b].column - p[a].column) <= kSteepMaxStepPx * gap;
+  };
+  std::vector<LinePoint> filled;
+  for (size_t i = 0; i + 1 < n; ++i) {
+    const int gap = p[i + 1].row - p[i].row;
+    if (gap < 2 || !joined(i, i + 1)) continue;
+    size_t lo = i, hi = i + 1;
+    while (lo > 0 && p[lo - 1].row >= p[i].row - kGapFitRows && joined(lo - 1, lo)) --lo;
+    while (hi + 1 < n && p[hi + 1].row <= p[i + 1].row + kGapFitRows && joined(hi, hi + 1)) ++hi;
+    if (i - lo + 1 < static_cast<size_t>(kGapMinSide) || hi - i < static_cast<size_t>(kGapMinSide)) continue;
+    // The curve through the stretch's points, about the gap's first missing row.
+    Curve curve;
+    curve.r0 = p[i].row + 1;
+    Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+    for (size_t k = lo; k <= hi; ++k) {
+      const double dr = p[k].row - curve.r0;
+      const Eigen::Vector3d basis(1.0, dr, dr * dr);
+      normal += basis * basis.transpose();
+      rhs += basis * static_cast<double>(p[k].column);
+    }
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
+    if (ldlt.info() != Eigen::Success) continue;
+    const Eigen::Vector3d x = ldlt.solve(rhs);
+    if (!x.allFinite()) continue;
+    curve.c0 = x[0];
+    curve.s = x[1];
+    curve.k = x[2];
+    double residual2 = 0, max_length = 1.0;
+    std::vector<float> widths;
+    for (size_t k = lo; k <= hi; ++k) {
+      const double e = p[k].column - curve.ColumnAt(p[k].row);
+      residual2 += e * e;
+      const double slope = curve.s + 2.0 * curve.k * (p[k].row - curve.r0);
+      max_length = std::max(max_length, std::sqrt(1.0 + slope * slope));
+      widths.push_back(p[k].width / static_cast<float>(std::sqrt(1.0 + slope * slope)));
+    }
+    const size_t dof = hi - lo + 1 - 3;
+    if (residual2 > kGapMaxResidual * kGapMaxResidual * (1.0 + max_length) * (1.0 + max_length) *
+                        static_cast<double>(dof))
+      continue;
+    // The curve's error along the row at a missing row: taken as one of its points' (the residual's RMS
+    // per degree of freedom): a gap's middle is as far from the points as the curve gets.
+    const double fit_sd = std::sqrt(residual2 / static_cast<double>(dof));
+    // The line's width across it: the stretch's median width along the rows over L.
+    std::nth_element(widths.begin(), widths.begin() + static_cast<long>(widths.size() / 2), widths.end());
+    const double width_across = widths[widths.size() / 2];
+    const double half = std::max(1.5, 0.5 * width_across);  // the matched filter's half width
+    for (int r = p[i].row + 1; r < p[i + 1].row; ++r) {
+      const double c0 = curve.ColumnAt(r);
+      if (!std::isfinite(c0) || c0 < 0 || c0 > cols - 1) continue;
+      const double dr0 = r - curve.r0;
+      const double s = curve.s + 2.0 * curve.k * dr0;
+      const double length = std::sqrt(1.0 + s * s);
+      // Across: (column - the curve's column in the pixel's row) / L; along: from the row's point.
+      const double reach_across = (kGapSideShift + 1.0) * half;
+      const double row_reach = (kGapAlongPx + reach_across * std::abs(s)) / length + 1.0;
+      const int r_first = ClampToIndex(std::floor(r - row_reach), rows);
+      const int r_last = ClampToIndex(std::ceil(r + row_reach), rows);
+      const double col_reach = (reach_across + kGapAlongPx) * length + 1.0;
+      auto across_along = [&](int rr, int c, double* across, double* along) {
+        *across = (c - curve.ColumnAt(rr)) / length;
+        *along = ((c - c0) * s + (rr - r)) / length;
+      };
+      // The matched filter: the box on the curve, and the boxes kGapSideShift half widths to either side;
+      // each split into the halves before and after the row's point along the line.
+      double sum[2][3] = {{0, 0, 0}, {0, 0, 0}};  // [half][centre, left, right]
+      int count[2][3] = {{0, 0, 0}, {0, 0, 0}};
+      double own[3] = {0, 0, 0};  // the row's own pixels of the three boxes
+      int own_count[3] = {0, 0, 0};
+      for (int rr = r_first; rr <= r_last; ++rr) {
+        const double cc = curve.ColumnAt(rr);
+        const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
+        const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
+        for (int c = c_first; c <= c_last; ++c) {
+          double across, along;
+          across_along(rr, c, &across, &along);
+          const int box = std::abs(across) <= half                               ? 0
+                          : std::abs(across + kGapSideShift * half) <= half ? 1
+                          : std::abs(across - kGapSideShift * half) <= half ? 2
+                                                                             : -1;
+          if (box < 0) continue;
+          const int d = SignedDifference(on, off, channel, rr, c);
+          if (rr == r) {  // the row's own pixels, at any distance along (a steep line's sides lie far along)
+            own[box] += d;
+            ++own_count[box];
+          }
+          if (std::abs(along) > kGapAlongPx) continue;
+          const int h = along < 0 ? 0 : 1;
+          sum[h][box] += d;
+          ++count[h][box];
+        }
+      }
+      // Contrast of the centre box over the sides' mean, per pixel, and its noise; over the whole window
+      // (at least min_z times its noise), over each half (at least kGapHalfZ: the line goes on through
+      // the row, it does not end at it, as at a shadow's edge) and over the row's own pixels (kGapHalfZ
+      // too: the row holds light of the line, not only its neighbours: rows where the laser is hidden, a
+      // laser-off frame saturated, stay empty).
+      auto z_of = [&](double s0, double s1, double s2, int n0, int n1, int n2) {
+        if (n0 < 2 || n1 < 2 || n2 < 2) return 0.0;
+        const double contrast = s0 / n0 - 0.5 * (s1 / n1 + s2 / n2);
+        return contrast / (noise_dn * std::sqrt(kGapCorrelation * (1.0 / n0 + 0.25 / n1 + 0.25 / n2)));
+      };
+      const double z = z_of(sum[0][0] + sum[1][0], sum[0][1] + sum[1][1], sum[0][2] + sum[1][2],
+                            count[0][0] + count[1][0], count[0][1] + count[1][1], count[0][2] + count[1][2]);
+      if (z < min_z) continue;
+      if (z_of(sum[0][0], sum[0][1], sum[0][2], count[0][0], count[0][1], count[0][2]) < kGapHalfZ ||
+          z_of(sum[1][0], sum[1][1], sum[1][2], count[1][0], count[1][1], count[1][2]) < kGapHalfZ ||
+          z_of(own[0], own[1], own[2], own_count[0], own_count[1], own_count[2]) < kGapHalfZ)
+        continue;
+      // The point's peak: the centre box's mean over the sides' (DN).
+      const int n_centre = count[0][0] + count[1][0];
+      const double contrast = (sum[0][0] + sum[1][0]) / n_centre -
+                              0.5 * ((sum[0][1] + sum[1][1]) / (count[0][1] + count[1][1]) +
+                                     (sum[0][2] + sum[1][2]) / (count[0][2] + count[1][2]));
+      // The centre: the centre of mass across of the difference above one sigma, within the line's width.
+      const double window = std::max(kSteepMinHalfPx, width_across);
+      double t = 0, spread2 = 0, sum_w = 0;
+      bool ok = true;
+      for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
+        double sw = 0, swt = 0, swtt = 0;
+        for (int rr = r_first; rr <= r_last; ++rr) {
+          const double cc = curve.ColumnAt(rr);
+          const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
+          const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
+          for (int c = c_first; c <= c_last; ++c) {
+            double across, along;
+            across_along(rr, c, &across, &along);
+            if (std::abs(along) > kGapAlongPx || std::abs(across - t) > window) continue;
+            const double w = SignedDifference(on, off, channel, rr, c) - noise_dn;
+            if (w <= 0) continue;
+            sw += w;
+            swt += w * across;
+            swtt += w * across * across;
+          }
+        }
+        if (sw <= 0) {
+          ok = false;
+          break;
+        }
+        t = std::clamp(swt / sw, -half, half);
+        sum_w = sw;
+        spread2 = std::max(0.0, swtt / sw - (swt / sw) * (swt / sw));
+      }
+      if (!ok) continue;
+      // The centre of mass's noise across: sigma sqrt(sum of (x - t)^2 over the window's pixels) / sum of
+      // weights, with the weights' spread standing in for the pixels' (times their count), and the pixels'
+      // correlation; the curve's own error across. The two estimates of the centre (the curve's, t = 0, and
+      // the centre of mass's) are combined by their inverse variances.
+      const double com_var = std::max(1e-6, kGapPixelVariance * noise_dn * noise_dn * spread2 *
+                                                (2.0 * window * 2.0 * kGapAlongPx) / (sum_w * sum_w));
+      const double fit_var = std::max(1e-6, (fit_sd / length) * (fit_sd / length));
+      const double var = 1.0 / (1.0 / com_var + 1.0 / fit_var);
+      t *= fit_var / (com_var + fit_var);
+      const double uncertainty = std::max(kGapMinUncertaintyPx, 2.0 * length * std::sqrt(var));
+      LinePoint& q = filled.emplace_back();
+      q.row = r;
+      q.column = static_cast<float>(c0 + t * length);
+      q.peak = static_cast<float>(contrast);
+      q.width = static_cast<float>(width_across * length);
+      q.uncertainty_px = static_cast<float>(uncertainty);
+      q.quality = static_cast<float>(kGapQuality / (1.0 + uncertainty * uncertainty));
+      q.flags = 0;
+    }
+  }
+  if (filled.empty()) return 0;
+  const int count = static_cast<int>(filled.size());
+  std::vector<LinePoint> merged;
+  merged.reserve(n + filled.size());
+  std::merge(p.begin(), p.end(), filled.begin(), filled.end(), std::back_inserter(merged),
+             [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
+  p.swap(merged);
+  return count;
+}
+
+}  // namespace rotoscan::laser::detail

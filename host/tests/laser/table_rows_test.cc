@@ -1,0 +1,510 @@
+// Issue 15, the table's rows on the webcam sets: the table top's line is weak (peak ~10 DN on the dark
+// table, noise ~1.5 DN) and steep in the image. Which of its rows carry a signal at all, and which are found.
+//
+// TableRowsTest.MissedRowsBySignal (opt-in: ROTOSCAN_TABLE_ROWS_STEPS=N, e.g. 8 for the bench's 8 steps;
+// ~2 s per step and set; ROTOSCAN_TABLE_ROWS_F=2.4 for another f-number than the scenes' f/4): every laser frame is rendered twice, as the scene makes it and without noise,
+// speckle, MJPEG and ambient changes (the same seed and table angle), and the clean difference's peak at
+// the true column (the highest within 1 px of it) is the row's signal, in units of the noisy frame's noise
+// sigma (LineStats::noise_dn, measured on its lit pixels). Printed per set and part (object / table): lit
+// rows not found, by that signal (< 2, 2-4, 4-6, >= 6 sigma); and for the table, where the missed rows are
+// (in a gap between found rows of its line, or beyond the found stretch's end).
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <random>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "laser/extract_steps.h"
+#include "rotoscan/laser/extract.h"
+#include "rotoscan/pipeline/accuracy.h"
+#include "rotoscan/sim/renderer.h"
+#include "rotoscan/sim/scene.h"
+#include "testing/testing.h"
+
+namespace rotoscan::laser {
+namespace {
+
+int EnvInt(const char* name, int fallback) {
+  const char* v = std::getenv(name);
+  return v != nullptr && *v != '\0' ? std::atoi(v) : fallback;
+}
+
+// The rows of one part of one set.
+struct PartRows {
+  int lit = 0, found = 0, over = 0;  // found: a point within 3 px across of the true line; over: > 1 px
+  int missed_by_signal[4] = {0, 0, 0, 0};  // not found, clean peak < 2, 2-4, 4-6, >= 6 sigma
+  int lit_by_signal[4] = {0, 0, 0, 0};     // all lit rows by the same
+  int missed_in_gap = 0;   // not found, with found rows of the same line within 16 rows above and below
+  int missed_beyond = 0;   // not found, found rows on one side only (or none): beyond a stretch's end
+  int missed_no_stretch = 0;  // no found row of the line within 16 rows either side
+  std::vector<double> signal_sigma;  // every lit row's clean peak / sigma
+  // Found but over 1 px across, each once, first cause first: filled by the gap step; a line's end (the
+  // truth stops within 4 rows); where the other part's rows begin within 4 rows (the table's line meets
+  // the object's); beside another line (another crossing within 24 px in the row or
+  // the next ones); the clean peak under 6 sigma; by slope (the true line's columns per row) under 2, 2-4,
+  // over 4. And by distance across: 1-2 px, 2-3 px, over 3 px (on another line).
+  int over_filled = 0, over_end = 0, over_junction = 0, over_beside = 0, over_weak = 0, over_slope[3] = {0, 0, 0};
+  int over_by_distance[3] = {0, 0, 0};
+  int filled = 0;
+  int plain_missed_by_signal[4] = {0, 0, 0, 0};  // not found without the gap step, by clean peak
+  int plain_missed_in_gap = 0;
+};
+
+struct SetRows {
+  PartRows object, table;
+  std::vector<double> noise, threshold;  // per frame
+  std::vector<double> table_clean_peak;  // the table's lit rows, clean peak DN
+  // The table's rows: the noise beside the line (the noisy difference minus the clean one, 8-20 px from
+  // the true column on either side), and the missed rows' noisy peak (within 2 px) over their clean one.
+  double side_sum2 = 0;
+  long side_n = 0;
+  std::vector<double> missed_noisy_over_clean;
+};
+
+int Bin(double sigmas) { return sigmas < 2 ? 0 : sigmas < 4 ? 1 : sigmas < 6 ? 2 : 3; }
+
+// The clean difference's highest within 1 px of the true column.
+double CleanPeak(const cv::Mat& on, const cv::Mat& off, int row, double column) {
+  double best = 0;
+  const int c0 = static_cast<int>(std::floor(column));
+  for (int c = c0 - 1; c <= c0 + 2; ++c) {
+    if (c < 0 || c >= on.cols) continue;
+    best = std::max(best, static_cast<double>(on.at<uint8_t>(row, c)) - off.at<uint8_t>(row, c));
+  }
+  return best;
+}
+
+SetRows MeasureSet(const std::string& scene_file, int steps) {
+  SetRows out;
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + scene_file));
+  EXPECT_TRUE(scene.ok()) << scene.status().ToString();
+  if (!scene.ok()) return out;
+  const char* f_number = std::getenv("ROTOSCAN_TABLE_ROWS_F");
+  if (f_number != nullptr && std::atof(f_number) > 0)
+    for (sim::LaserModel& laser : scene->laser) laser.f_number = std::atof(f_number);
+  sim::Scene clean_scene = *scene;
+  clean_scene.sensor.noise = false;
+  clean_scene.sensor.jpeg_quality = 0;
+  clean_scene.ambient_change = 0;
+  clean_scene.ambient_flicker = 0;
+  for (sim::LaserModel& laser : clean_scene.laser) {
+    laser.f_number = 0;
+    laser.speckle_contrast = 0;
+  }
+  auto renderer = sim::Renderer::Create(*scene);
+  auto clean_renderer = sim::Renderer::Create(clean_scene);
+  EXPECT_TRUE(renderer.ok() && clean_renderer.ok());
+  if (!renderer.ok() || !clean_renderer.ok()) return out;
+  LineExtractor extractor{ExtractOptions{}};
+  for (int step = 0; step < steps; ++step) {
+    const double angle = step * 2.0 * 3.14159265358979323846 / steps;
+    const uint64_t seed = sim::FrameSeed(scene->seed, -1, step, 0);  // as rotoscan simulate (and bench) a scan
+    const sim::FrameMask mask = {true, true, true, false};
+    const sim::RenderedStep frames = (*renderer)->RenderStep(angle, seed, mask);
+    const sim::RenderedStep clean = (*clean_renderer)->RenderStep(angle, seed, mask);
+    cv::Mat clean_off;
+    cv::extractChannel(clean.frames[2], clean_off, 2);
+    for (int k = 0; k < 2; ++k) {
+      const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
+      Line line;
+      EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
+      const double sigma = std::max(0.1, line.stats.noise_dn);
+      out.noise.push_back(line.stats.noise_dn);
+      out.threshold.push_back(line.stats.threshold_dn);
+      cv::Mat clean_on;
+      cv::extractChannel(clean.frames[k], clean_on, 2);
+      std::map<int, std::vector<double>> all_by_row;
+      std::map<int, bool> object_row;
+      for (const bundle::LinePoint& t : truth) {
+        all_by_row[t.row].push_back(t.column);
+        object_row[t.row] = object_row[t.row] || t.object != 0;
+      }
+      std::map<int, float> point_of_row;
+      for (const LinePoint& p : line.points) point_of_row[p.row] = p.column;
+      // The rows the gap step filled: without it, no point.
+      ExtractOptions no_gaps;
+      no_gaps.fill_gaps = false;
+      auto plain = ExtractLine(frames.frames[k], frames.frames[2], no_gaps);
+      EXPECT_TRUE(plain.ok());
+      std::map<int, bool> plain_row, plain_found;
+      if (plain.ok())
+        for (const LinePoint& p : plain->points) {
+          plain_row[p.row] = true;
+          plain_found[p.row] = pipeline::DistanceAcrossLine(p.column, p.row, all_by_row) <= 3.0;
+        }
+      // Found rows of the table's line (a point within 3 px across of the truth).
+      std::map<int, bool> found;
+      for (const auto& [row, columns] : all_by_row) {
+        const auto it = point_of_row.find(row);
+        found[row] = it != point_of_row.end() && pipeline::DistanceAcrossLine(it->second, row, all_by_row) <= 3.0;
+      }
+      for (const auto& [row, columns] : all_by_row) {
+        const bool is_object = object_row[row];
+        PartRows& part = is_object ? out.object : out.table;
+        ++part.lit;
+        // The signal of the row: the strongest true crossing's clean peak.
+        double peak = 0;
+        for (double c : columns) peak = std::max(peak, CleanPeak(clean_on, clean_off, row, c));
+        const double sigmas = peak / sigma;
+        part.signal_sigma.push_back(sigmas);
+        ++part.lit_by_signal[Bin(sigmas)];
+        if (!is_object) {
+          out.table_clean_peak.push_back(peak);
+          const int c0 = static_cast<int>(std::lround(columns[0]));
+          for (int dc = 8; dc <= 20; ++dc) {
+            for (int c : {c0 - dc, c0 + dc}) {
+              if (c < 0 || c >= clean_on.cols) continue;
+              const double noisy = static_cast<double>(frames.frames[k].at<cv::Vec3b>(row, c)[2]) -
+                                   frames.frames[2].at<cv::Vec3b>(row, c)[2];
+              const double e = noisy - (static_cast<double>(clean_on.at<uint8_t>(row, c)) - clean_off.at<uint8_t>(row, c));
+              out.side_sum2 += e * e;
+              ++out.side_n;
+            }
+          }
+          if (!found[row]) {
+            double noisy_peak = 0;
+            for (int c = std::max(0, c0 - 2); c <= std::min(clean_on.cols - 1, c0 + 2); ++c)
+              noisy_peak = std::max(noisy_peak, static_cast<double>(frames.frames[k].at<cv::Vec3b>(row, c)[2]) -
+                                                    frames.frames[2].at<cv::Vec3b>(row, c)[2]);
+            if (peak > 0) out.missed_noisy_over_clean.push_back(noisy_peak / peak);
+          }
+        }
+        if (!plain_found[row]) {
+          ++part.plain_missed_by_signal[Bin(sigmas)];
+          bool above = false, below = false;
+          for (int dr = 1; dr <= 16; ++dr) {
+            above = above || plain_found[row - dr];
+            below = below || plain_found[row + dr];
+          }
+          part.plain_missed_in_gap += above && below;
+        }
+        if (found[row]) {
+          ++part.found;
+          const bool filled = plain_row.count(row) == 0;
+          part.filled += filled;
+          const double across = pipeline::DistanceAcrossLine(point_of_row[row], row, all_by_row);
+          if (across <= 1.0) continue;
+          ++part.over;
+          ++part.over_by_distance[across <= 2 ? 0 : across <= 3 ? 1 : 2];
+          bool end = false, junction = false, beside = columns.size() > 1;
+          double slope = 0;
+          for (int dr = -4; dr <= 4; ++dr) {
+            const auto n = all_by_row.find(row + dr);
+            if (n == all_by_row.end()) {
+              end = true;
+              continue;
+            }
+            if (object_row[row + dr] != is_object) {
+              junction = true;
+              continue;
+            }
+            if (std::abs(dr) == 1) slope = std::max(slope, std::abs(n->second[0] - columns[0]));
+            for (double c : n->second) {
+              double nearest = 1e9;
+              for (double c2 : columns) nearest = std::min(nearest, std::abs(c - c2));
+              beside = beside || (nearest > 24 + 24 * std::abs(dr) && nearest < 48 + 24 * std::abs(dr));
+            }
+          }
+          if (filled) {
+            ++part.over_filled;
+          } else if (end) {
+            ++part.over_end;
+          } else if (junction) {
+            ++part.over_junction;
+          } else if (beside) {
+            ++part.over_beside;
+          } else if (sigmas < 6) {
+            ++part.over_weak;
+          } else {
+            ++part.over_slope[slope < 2 ? 0 : slope < 4 ? 1 : 2];
+          }
+          continue;
+        }
+        ++part.missed_by_signal[Bin(sigmas)];
+        bool above = false, below = false;
+        for (int dr = 1; dr <= 16; ++dr) {
+          const auto a = found.find(row - dr), b = found.find(row + dr);
+          above = above || (a != found.end() && a->second);
+          below = below || (b != found.end() && b->second);
+        }
+        if (above && below) {
+          ++part.missed_in_gap;
+        } else if (above || below) {
+          ++part.missed_beyond;
+        } else {
+          ++part.missed_no_stretch;
+        }
+      }
+    }
+  }
+  return out;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+void Print(const char* name, const PartRows& p) {
+  const int missed = p.lit - p.found;
+  std::printf("  %-6s lit %5d found %5d (%.1f %%) over 1 px %d (%.2f %%); lit by clean peak <2 / 2-4 / 4-6 / >=6 "
+              "sigma: %d / %d / %d / %d; missed %d: %d / %d / %d / %d; in a gap %d, beyond a stretch's end %d, no "
+              "stretch within 16 rows %d; median clean peak %.1f sigma\n",
+              name, p.lit, p.found, 100.0 * p.found / std::max(1, p.lit), p.over, 100.0 * p.over / std::max(1, p.lit),
+              p.lit_by_signal[0], p.lit_by_signal[1], p.lit_by_signal[2], p.lit_by_signal[3], missed,
+              p.missed_by_signal[0], p.missed_by_signal[1], p.missed_by_signal[2], p.missed_by_signal[3],
+              p.missed_in_gap, p.missed_beyond, p.missed_no_stretch, Median(p.signal_sigma));
+  std::printf("         without the gap step: missed %d: %d / %d / %d / %d; in a gap %d\n",
+              p.plain_missed_by_signal[0] + p.plain_missed_by_signal[1] + p.plain_missed_by_signal[2] +
+                  p.plain_missed_by_signal[3],
+              p.plain_missed_by_signal[0], p.plain_missed_by_signal[1], p.plain_missed_by_signal[2],
+              p.plain_missed_by_signal[3], p.plain_missed_in_gap);
+  std::printf("         filled by the gap step %d; over 1 px: %d filled, %d at a line's end, %d where the other part's rows begin, %d beside another line, %d "
+              "weak (< 6 sigma), by slope < 2 / 2-4 / > 4 px per row %d / %d / %d; across 1-2 / 2-3 / > 3 px %d / %d / "
+              "%d\n",
+              p.filled, p.over_filled, p.over_end, p.over_junction, p.over_beside, p.over_weak, p.over_slope[0], p.over_slope[1],
+              p.over_slope[2], p.over_by_distance[0], p.over_by_distance[1], p.over_by_distance[2]);
+}
+
+TEST(TableRowsTest, MissedRowsBySignal) {
+  const int steps = EnvInt("ROTOSCAN_TABLE_ROWS_STEPS", 0);
+  if (steps <= 0) GTEST_SKIP() << "opt-in: ROTOSCAN_TABLE_ROWS_STEPS=8";
+  for (const char* file : {"glossy-webcam.json", "textured-webcam.json"}) {
+    const SetRows set = MeasureSet(file, steps);
+    std::printf("%s, %d steps x 2 lasers: noise sigma median %.2f DN (%.2f-%.2f), threshold median %.0f DN, "
+                "table's clean peak median %.1f DN\n",
+                file, steps, Median(set.noise), *std::min_element(set.noise.begin(), set.noise.end()),
+                *std::max_element(set.noise.begin(), set.noise.end()), Median(set.threshold),
+                Median(set.table_clean_peak));
+    std::printf("  table: noise beside the line %.2f DN; missed rows' noisy peak over clean peak median %.2f\n",
+                std::sqrt(set.side_sum2 / std::max(1L, set.side_n)), Median(set.missed_noisy_over_clean));
+    Print("object", set.object);
+    Print("table", set.table);
+    EXPECT_GT(set.table.lit, 0);
+  }
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
+
+namespace rotoscan::laser {
+namespace {
+
+// A weak, steep, speckled line as the webcam's table top shows it (TableRowsTest: peak ~13 DN over a
+// noise of 1.4 DN, 2-4 columns per row, fully developed speckle): on a lit background (20 DN, so that the
+// noise is measured on lit pixels and the webcam's steps run), the laser adds amplitude * exp(-d^2 / 2
+// sigma^2), d the distance across the line, times a speckle intensity (|complex Gaussian field blurred by
+// 1.2 px|^2, mean 1), then the optics' blur (1.2 px, the webcam preset's). No laser in the rows of `shadow` (a line the
+// object hides). Truth: column = kStartColumn + kSlope * row.
+constexpr int kRows = 200, kCols = 640;
+constexpr double kSlope = 2.5, kStartColumn = 60.0, kAcrossSigma = 1.6, kBlurPx = 1.2;
+
+void MakeWeakSteepPair(double amplitude, uint32_t seed, std::pair<int, int> shadow, cv::Mat* on, cv::Mat* off) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  cv::Mat re(kRows, kCols, CV_64F), im(kRows, kCols, CV_64F);
+  for (int r = 0; r < kRows; ++r)
+    for (int c = 0; c < kCols; ++c) {
+      re.at<double>(r, c) = normal(rng);
+      im.at<double>(r, c) = normal(rng);
+    }
+  cv::GaussianBlur(re, re, cv::Size(0, 0), 1.2);
+  cv::GaussianBlur(im, im, cv::Size(0, 0), 1.2);
+  cv::Mat speckle = re.mul(re) + im.mul(im);
+  speckle /= cv::mean(speckle)[0];
+  const double length = std::sqrt(1.0 + kSlope * kSlope);
+  cv::Mat laser(kRows, kCols, CV_64F);
+  for (int r = 0; r < kRows; ++r) {
+    const bool lit = r < shadow.first || r > shadow.second;
+    for (int c = 0; c < kCols; ++c) {
+      const double d = (c - (kStartColumn + kSlope * r)) / length;
+      laser.at<double>(r, c) =
+          lit ? amplitude * std::exp(-0.5 * d * d / (kAcrossSigma * kAcrossSigma)) * speckle.at<double>(r, c) : 0.0;
+    }
+  }
+  cv::GaussianBlur(laser, laser, cv::Size(0, 0), kBlurPx);
+  on->create(kRows, kCols, CV_8UC1);
+  off->create(kRows, kCols, CV_8UC1);
+  for (int r = 0; r < kRows; ++r) {
+    for (int c = 0; c < kCols; ++c) {
+      off->at<uint8_t>(r, c) = cv::saturate_cast<uint8_t>(20.0 + 1.4 * normal(rng));
+      on->at<uint8_t>(r, c) = cv::saturate_cast<uint8_t>(20.0 + laser.at<double>(r, c) + 1.4 * normal(rng));
+    }
+  }
+}
+
+double AcrossError(const LinePoint& p) {
+  return std::abs(p.column - (kStartColumn + kSlope * p.row)) / std::sqrt(1.0 + kSlope * kSlope);
+}
+
+// FillLineGaps (gaps.cc) on 10 synthetic weak steep lines of 13 DN (9 sigma) with a shadow of 14 rows:
+// the rows the row pass misses (speckle takes a grain out of the peak) are found along the curve, near the
+// true line across it (measured: 185 of the 646 rows missed, RMS 0.40 px across, 2 over 1 px, i.e. 0.11 %
+// of the lit rows: issue 15's target is 0.2 %); none filled in the shadow (3 were, before the step asked
+// for the line on both sides of the row along it).
+TEST(GapFillTest, WeakSteepLineGapsFoundNearTheTruthAndNoneInAShadow) {
+  const std::pair<int, int> shadow = {100, 113};
+  int lit = 0, found_without = 0, found_with = 0, filled = 0, filled_over = 0, in_shadow = 0;
+  double filled_sum2 = 0;
+  for (uint32_t seed = 1; seed <= 10; ++seed) {
+    cv::Mat on, off;
+    MakeWeakSteepPair(13.0, seed, shadow, &on, &off);
+    ExtractOptions without;
+    without.fill_gaps = false;
+    auto a = ExtractLine(on, off, without);
+    auto b = ExtractLine(on, off, ExtractOptions{});
+    ASSERT_TRUE(a.ok() && b.ok());
+    ASSERT_TRUE(b->stats.noise_on_lit);
+    std::map<int, bool> row_found;
+    for (const LinePoint& p : a->points) row_found[p.row] = AcrossError(p) <= 3.0;
+    lit += kRows - (shadow.second - shadow.first + 1);
+    for (const LinePoint& p : a->points) found_without += AcrossError(p) <= 3.0;
+    for (const LinePoint& p : b->points) {
+      if (p.row >= shadow.first && p.row <= shadow.second) {
+        in_shadow += row_found.count(p.row) == 0;  // filled there (the row pass may see the blur's edge)
+        continue;
+      }
+      found_with += AcrossError(p) <= 3.0;
+      if (row_found.count(p.row) != 0) continue;
+      // A row the row pass left empty.
+      ++filled;
+      const double e = AcrossError(p);
+      filled_over += e > 1.0;
+      filled_sum2 += e * e;
+    }
+    EXPECT_EQ(b->stats.gap_filled, static_cast<int>(b->points.size() - a->points.size()));
+  }
+  const double rms = std::sqrt(filled_sum2 / std::max(1, filled));
+  std::printf("weak steep line, %d lit rows: found %d without the gap step, %d with (%d filled, across the line "
+              "RMS %.3f px, %d over 1 px); %d points in the shadow\n",
+              lit, found_without, found_with, filled, rms, filled_over, in_shadow);
+  EXPECT_GE(lit - found_without, lit / 20);  // the row pass misses rows here (else the test tests nothing)
+  EXPECT_GE(found_with - found_without, (lit - found_without) / 4);
+  EXPECT_LE(rms, 0.6);
+  EXPECT_LE(filled_over, lit / 500);
+  EXPECT_EQ(in_shadow, 0);
+}
+
+// The false rate: the points of real stretches with gaps punched in them (rows 3 and 4 of every 7) given to
+// FillLineGaps with a pair of laser-off frames (no laser): every filled row is a false one. Synthetic
+// (white noise) pairs, and the webcam scenes' laser-off pairs (DetectionFloorTest's: MJPEG, demosaicing,
+// rolling-shutter flicker, changing ambient), whose pixels are correlated: the variance of a box's sum
+// over the pixels' count times sigma^2 is printed (gaps.cc's kGapCorrelation).
+std::vector<LinePoint> Punched(const std::vector<LinePoint>& points, int* offered) {
+  std::vector<LinePoint> kept;
+  for (const LinePoint& p : points) {
+    if (p.row % 7 == 3 || p.row % 7 == 4) {
+      ++*offered;
+    } else {
+      kept.push_back(p);
+    }
+  }
+  return kept;
+}
+
+TEST(GapFillTest, NoRowsFilledOnLaserOffPairs) {
+  // False rows at min_z 3, 4, 5 and 6 (the default).
+  const double zs[4] = {3, 4, 5, detail::kGapMinZ};
+  int offered = 0, false_rows[4] = {0, 0, 0, 0}, real_filled = 0, real_offered = 0;
+  for (uint32_t seed = 1; seed <= 10; ++seed) {
+    cv::Mat on, off, off2, unused;
+    MakeWeakSteepPair(13.0, seed, {-1, -1}, &on, &off);
+    MakeWeakSteepPair(0.0, seed + 100, {-1, -1}, &off2, &unused);
+    ExtractOptions without;
+    without.fill_gaps = false;
+    auto a = ExtractLine(on, off, without);
+    auto noise = ExtractLine(off2, off, without);
+    ASSERT_TRUE(a.ok() && noise.ok());
+    int o = 0;
+    std::vector<LinePoint> points = Punched(a->points, &o);
+    std::vector<LinePoint> real = points;
+    for (int z = 0; z < 4; ++z) {
+      std::vector<LinePoint> copy = points;
+      false_rows[z] += detail::FillLineGaps(off2, off, 0, noise->stats.noise_dn, &copy, zs[z]);
+    }
+    real_filled += detail::FillLineGaps(on, off, 0, a->stats.noise_dn, &real);
+    offered += o;
+    real_offered += o;
+  }
+  const char* files[] = {"glossy-webcam.json", "textured-webcam.json", "concave-webcam.json"};
+  int rendered_offered = 0, rendered_false[4] = {0, 0, 0, 0};
+  double ratio_sum = 0;
+  int ratio_n = 0;
+  for (const char* file : files) {
+    auto scene = sim::LoadScene(rotoscan::testing::DataPath(std::string("scenes/") + file));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    auto renderer = sim::Renderer::Create(*scene);
+    ASSERT_TRUE(renderer.ok());
+    for (int step = 0; step < 2; ++step) {
+      const double angle = step * 2.0 * 3.14159265358979323846 / 3;
+      const sim::RenderedStep frames =
+          (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), {true, true, true, false});
+      const cv::Mat other =
+          (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 7), {false, false, true, false}).frames[2];
+      ExtractOptions without;
+      without.fill_gaps = false;
+      auto noise = ExtractLine(other, frames.frames[2], without);
+      ASSERT_TRUE(noise.ok());
+      const double sigma = noise->stats.noise_dn;
+      for (int k = 0; k < 2; ++k) {
+        auto line = ExtractLine(frames.frames[k], frames.frames[2], without);
+        ASSERT_TRUE(line.ok());
+        int o = 0;
+        std::vector<LinePoint> points = Punched(line->points, &o);
+        rendered_offered += o;
+        for (int z = 0; z < 4; ++z) {
+          std::vector<LinePoint> copy = points;
+          rendered_false[z] += detail::FillLineGaps(other, frames.frames[2], 2, sigma, &copy, zs[z]);
+        }
+      }
+      // Box sums (8 x 4 px) of the red difference over lit pixels (laser-off >= 16 DN): their variance over
+      // 32 sigma^2.
+      double sum = 0, sum2 = 0;
+      int boxes = 0;
+      for (int r = 0; r + 8 <= other.rows; r += 8) {
+        for (int c = 0; c + 4 <= other.cols; c += 4) {
+          double s = 0;
+          bool lit = true;
+          for (int dr = 0; dr < 8 && lit; ++dr)
+            for (int dc = 0; dc < 4 && lit; ++dc) {
+              lit = frames.frames[2].at<cv::Vec3b>(r + dr, c + dc)[2] >= 16;
+              s += static_cast<double>(other.at<cv::Vec3b>(r + dr, c + dc)[2]) -
+                   frames.frames[2].at<cv::Vec3b>(r + dr, c + dc)[2];
+            }
+          if (!lit) continue;
+          sum += s;
+          sum2 += s * s;
+          ++boxes;
+        }
+      }
+      if (boxes > 100) {
+        ratio_sum += (sum2 / boxes - (sum / boxes) * (sum / boxes)) / (32.0 * sigma * sigma);
+        ++ratio_n;
+      }
+    }
+  }
+  std::printf("gap rows offered on laser-off pairs: synthetic %d, filled at z 3 / 4 / 5 / 6: %d / %d / %d / %d (on "
+              "the laser pairs, z 6: %d, natural gaps included, of %d punched); webcam scenes %d, filled %d / %d / %d / %d; box-sum variance over N "
+              "sigma^2 on the webcam pairs %.2f (mean of %d)\n",
+              offered, false_rows[0], false_rows[1], false_rows[2], false_rows[3], real_filled, real_offered,
+              rendered_offered, rendered_false[0], rendered_false[1], rendered_false[2], rendered_false[3],
+              ratio_sum / std::max(1, ratio_n), ratio_n);
+  EXPECT_GT(real_filled, real_offered / 2);  // the same gaps on the laser pairs are found
+  EXPECT_GT(rendered_offered, 1000);
+  // At most DetectionFloorTest's rate for the row pass (0.05 % of the rows offered).
+  EXPECT_EQ(detail::kGapMinZ, 6.0);
+  EXPECT_LE(false_rows[3], offered / 2000);
+  EXPECT_LE(rendered_false[3], rendered_offered / 2000);
+}
+
+}  // namespace
+}  // namespace rotoscan::laser
