@@ -13,6 +13,9 @@
 // off, and with every vector extension against SSE2 alone (the SSE2-only digest must equal the other, so
 // the tool also checks the paths against each other). --sets synthetic,random skips the renders.
 // The digest is FNV-1a over the bytes of each field, in a fixed order (not of the struct: no padding).
+// --dump FILE also writes every point (set, estimator, smoothing, frame, row, column, peak, width,
+// quality, uncertainty, flags) as text, to see where two builds differ and by how much
+// (scripts/compare_digest_dumps.py).
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -146,7 +149,9 @@ bool Rendered(Pairs* pairs) {
 }
 
 // One digest per set: every estimator, smoothing on and off; `wide` false: SSE2 alone.
-uint64_t DigestOf(const Pairs& pairs, bool wide, size_t* points) {
+FILE* g_dump = nullptr;
+
+uint64_t DigestOf(const std::string& set, const Pairs& pairs, bool wide, size_t* points) {
   rotoscan::laser::internal::AllowVectorExtensions(wide, wide);
   Digest d;
   for (Estimator estimator :
@@ -157,6 +162,7 @@ uint64_t DigestOf(const Pairs& pairs, bool wide, size_t* points) {
       options.smooth_half_rows = smooth;
       LineExtractor extractor(options);
       Line line;
+      int frame = 0;
       for (const auto& [on, off] : pairs) {
         const rotoscan::Status status = extractor.Extract(on, off, &line);
         if (!status.ok()) {
@@ -165,6 +171,14 @@ uint64_t DigestOf(const Pairs& pairs, bool wide, size_t* points) {
         }
         AddLine(line, &d);
         *points += line.points.size();
+        if (g_dump != nullptr && wide) {
+          for (const rotoscan::laser::LinePoint& p : line.points) {
+            std::fprintf(g_dump, "%s %s %d %d %d %.9g %.9g %.9g %.9g %.9g %d\n", set.c_str(),
+                         rotoscan::laser::EstimatorName(estimator), smooth, frame, p.row, p.column, p.peak, p.width,
+                         p.quality, p.uncertainty_px, p.flags);
+          }
+        }
+        ++frame;
       }
     }
   }
@@ -180,10 +194,16 @@ int main(int argc, char** argv) {
     const std::string arg = argv[i];
     if (arg == "--check" && i + 1 < argc) {
       check = argv[++i];
+    } else if (arg == "--dump" && i + 1 < argc) {
+      g_dump = std::fopen(argv[++i], "w");
+      if (g_dump == nullptr) {
+        std::fprintf(stderr, "laser_digest: cannot write %s\n", argv[i]);
+        return 2;
+      }
     } else if (arg == "--sets" && i + 1 < argc) {
       sets = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: laser_digest [--sets synthetic,random,rendered] [--check FILE]\n");
+      std::fprintf(stderr, "usage: laser_digest [--sets synthetic,random,rendered] [--check FILE] [--dump FILE]\n");
       return 2;
     }
   }
@@ -216,9 +236,9 @@ int main(int argc, char** argv) {
     if (!maker->second(&pairs)) return 2;
     size_t points = 0, points_sse2 = 0;
     char hash[17], hash_sse2[17];
-    std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(DigestOf(pairs, true, &points)));
+    std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(DigestOf(name, pairs, true, &points)));
     std::snprintf(hash_sse2, sizeof hash_sse2, "%016llx",
-                  static_cast<unsigned long long>(DigestOf(pairs, false, &points_sse2)));
+                  static_cast<unsigned long long>(DigestOf(name, pairs, false, &points_sse2)));
     std::printf("%s %s %zu frames, %zu points\n", name.c_str(), hash, pairs.size(), points);
     if (std::strcmp(hash, hash_sse2) != 0) {
       std::printf("  FAIL: SSE2 alone gives %s\n", hash_sse2);
@@ -236,6 +256,10 @@ int main(int argc, char** argv) {
         std::printf("  same as %s\n", check.c_str());
       }
     }
+  }
+  if (g_dump != nullptr && std::fclose(g_dump) != 0) {
+    std::fprintf(stderr, "laser_digest: writing the dump failed\n");
+    return 2;
   }
   return failures == 0 ? 0 : 1;
 }
