@@ -100,9 +100,10 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     const int r_last = std::min(rows - 1, static_cast<int>(std::ceil(r0 + row_reach)));
     double t = 0;  // the centre's offset across the line from the row's point, px
     bool ok = true;
-    // The weights' level as an integer test: d - level > 0 exactly where kComScale d > kComLevelNum peak
-    // (the peak is a whole number of DN), i.e. d >= kComLevelNum peak / kComScale + 1 in integers.
-    const int min_d = kComLevelNum * static_cast<int>(p[i].peak) / kComScale + 1;
+    // The weights' level as an integer test: for a whole difference d, d - level > 0 exactly where
+    // d >= floor(level) + 1 (whatever the peak, a whole number of DN or not). No pixel passes over 255.
+    const int min_d = static_cast<int>(std::floor(level)) + 1;
+    if (min_d > 255) continue;
     const int step = on.channels();
     for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
       double sum_w = 0, sum_wt = 0;
