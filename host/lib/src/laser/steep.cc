@@ -21,6 +21,28 @@
 #include "kernels.h"
 
 namespace rotoscan::laser::detail {
+namespace {
+
+// The next iteration's stretch of a row reuses the last one's sums when neither end moved more than this.
+constexpr int kSteepEdgePx = 6;
+
+// A row's window sums (WindowSums, but in absolute columns) over [c_first, c_last] (none: c_first > c_last).
+struct RowSums {
+  int c_first = 0, c_last = -1;
+  int64_t count = 0, sum_d = 0, sum_c = 0, sum_dc = 0;
+  // Adds (sign 1) or removes (-1) pixel c, by SteepWindowSums' rule.
+  void Add(const uint8_t* a, const uint8_t* b, int step, int c, int threshold, int min_d, int sign) {
+    const int av = a[c * step], bv = b[c * step];
+    const int d = av == 255 && bv <= 255 - threshold ? 255 : std::max(av - bv, 0);
+    if (d < min_d) return;
+    count += sign;
+    sum_d += sign * d;
+    sum_c += sign * c;
+    sum_dc += int64_t{sign} * d * c;
+  }
+};
+
+}  // namespace
 int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                        std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& p = *line_points;
@@ -105,6 +127,11 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     const int min_d = static_cast<int>(std::floor(level)) + 1;
     if (min_d > 255) continue;
     const int step = on.channels();
+    // Each row's sums of the last iteration, with their stretch and in absolute columns, so that the next
+    // iteration (t moves the stretch by a pixel or two) adds and removes the pixels at its ends instead of
+    // summing it again: the same integers.
+    thread_local std::vector<RowSums> kept;
+    kept.assign(static_cast<size_t>(r_last - r_first + 1), RowSums{});
     for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
       double sum_w = 0, sum_wt = 0;
       for (int r = r_first; r <= r_last; ++r) {
@@ -126,12 +153,32 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
         const int c_last = std::min({cols - 1, static_cast<int>(std::floor(std::max(along_a, along_b))),
                                      static_cast<int>(std::floor(centre + half * length))});
         if (c_first > c_last) continue;
-        const WindowSums row = SteepWindowSums(on.ptr<uint8_t>(r) + channel, off.ptr<uint8_t>(r) + channel, step,
-                                               c_first, c_last, cols, threshold, min_d);  // kernels.h
-        if (row.count == 0) continue;
-        const double w = row.sum_d - level * row.count;
+        const uint8_t* a = on.ptr<uint8_t>(r) + channel;
+        const uint8_t* b = off.ptr<uint8_t>(r) + channel;
+        RowSums& k = kept[static_cast<size_t>(r - r_first)];
+        if (k.c_first <= k.c_last && std::abs(c_first - k.c_first) <= kSteepEdgePx &&
+            std::abs(c_last - k.c_last) <= kSteepEdgePx && c_first <= k.c_last && k.c_first <= c_last) {
+          // The last stretch's sums, its ends moved to [c_first, c_last].
+          for (int c = c_first; c < k.c_first; ++c) k.Add(a, b, step, c, threshold, min_d, 1);
+          for (int c = k.c_first; c < c_first; ++c) k.Add(a, b, step, c, threshold, min_d, -1);
+          for (int c = k.c_last + 1; c <= c_last; ++c) k.Add(a, b, step, c, threshold, min_d, 1);
+          for (int c = c_last + 1; c <= k.c_last; ++c) k.Add(a, b, step, c, threshold, min_d, -1);
+        } else {
+          const WindowSums sums = SteepWindowSums(a, b, step, c_first, c_last, cols, threshold, min_d);  // kernels.h
+          k.count = sums.count;
+          k.sum_d = sums.sum_d;
+          k.sum_c = sums.sum_offset + int64_t{c_first} * sums.count;
+          k.sum_dc = sums.sum_d_offset + int64_t{c_first} * sums.sum_d;
+        }
+        k.c_first = c_first;
+        k.c_last = c_last;
+        if (k.count == 0) continue;
+        // The sums relative to c_first, as SteepWindowSums gives them.
+        const int64_t sum_offset = k.sum_c - int64_t{c_first} * k.count;
+        const int64_t sum_d_offset = k.sum_dc - int64_t{c_first} * k.sum_d;
+        const double w = k.sum_d - level * k.count;
         sum_w += w;
-        sum_wt += row.sum_d_offset - level * row.sum_offset + (c_first - line) * w;  // times L: across
+        sum_wt += sum_d_offset - level * sum_offset + (c_first - line) * w;  // times L: across
       }
       if (sum_w <= 0) {
         ok = false;
