@@ -19,8 +19,15 @@
 //                                      fastest any single-pass extractor could go
 //   BM_StreamReadBgr/<order>           the same bound for the color frames of BM_ExtractBgr
 //
+//   BM_ExtractWebcam/<smoothing>       the same on typical frames: rendered webcam frames (below), their
+//                                      red channel as gray; compare with BM_StreamReadWebcam
+//
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
-// 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows.
+// 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows; and the line is
+// steep (over 1 column per row) in half the rows, where the steep step (steep.cc) measures it across.
+// The typical frames: 16 pairs rendered from glossy-webcam.json and textured-webcam.json (1280x960, 4
+// table angles x 2 lasers each; the object's line, the table's, glints, texture), ~10 s to render at the
+// start of the first benchmark that uses them.
 // Run: build/host/bench/laser/laser_bench --benchmark_repetitions=5 (medians; on an idle machine)
 #include <benchmark/benchmark.h>
 #include <emmintrin.h>
@@ -38,6 +45,8 @@
 #include "rotoscan/geometry/plane.h"
 #include "rotoscan/laser/extract.h"
 #include "rotoscan/laser/triangulate.h"
+#include "rotoscan/sim/renderer.h"
+#include "rotoscan/sim/scene.h"
 #include "synthetic_line.h"
 
 namespace {
@@ -89,6 +98,32 @@ const Frames& BgrFrames() {
   return frames;
 }
 
+const Frames& WebcamFrames() {
+  static const Frames frames = [] {
+    Frames f;
+    for (const char* file : {"glossy-webcam.json", "textured-webcam.json"}) {
+      auto scene = rotoscan::sim::LoadScene(std::string(ROTOSCAN_SOURCE_DIR) + "/data/scenes/" + file);
+      if (!scene.ok()) std::abort();
+      auto renderer = rotoscan::sim::Renderer::Create(*scene);
+      if (!renderer.ok()) std::abort();
+      for (int step = 0; step < 4; ++step) {
+        const rotoscan::sim::RenderedStep rendered = (*renderer)->RenderStep(
+            step * 3.14159265358979323846 / 4, rotoscan::sim::FrameSeed(scene->seed, 0, step, 0), {true, true, true, false});
+        cv::Mat off;
+        cv::extractChannel(rendered.frames[2], off, 2);
+        for (int k = 0; k < 2; ++k) {
+          cv::Mat on;
+          cv::extractChannel(rendered.frames[k], on, 2);
+          f.on.push_back(on);
+          f.off.push_back(k == 0 ? off : off.clone());  // each pair its own bytes
+        }
+      }
+    }
+    return f;
+  }();
+  return frames;
+}
+
 rotoscan::geometry::CameraModel Camera() {
   rotoscan::geometry::CameraModel camera =
       rotoscan::geometry::CameraModel::FromFieldOfView(kWidth, kHeight, 20.0);
@@ -113,6 +148,7 @@ void BM_ExtractTriangulate(benchmark::State& state) {
   rotoscan::laser::ExtractOptions options;
   options.estimator = static_cast<rotoscan::laser::Estimator>(state.range(0));
   if (state.range(1) == 0) options.smooth_half_rows = 0;
+  if (state.range(1) == 2) options.steep_across = false;  // smoothed, without the steep step
   rotoscan::laser::LineExtractor extractor(options);
   static const rotoscan::laser::Triangulator triangulator(Camera());
   const rotoscan::geometry::Plane plane = Laser();
@@ -135,16 +171,48 @@ void BM_ExtractTriangulate(benchmark::State& state) {
   state.counters["points_per_frame"] =
       static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
   state.SetLabel(std::string(rotoscan::laser::EstimatorName(options.estimator)) +
-                 (options.smooth_half_rows > 0 ? " smoothed" : " per row") + (pairs == 1 ? ", cached" : ""));
+                 (options.smooth_half_rows > 0 ? " smoothed" : " per row") + (options.steep_across ? "" : ", no steep step") +
+                 (pairs == 1 ? ", cached" : ""));
 }
 // Arguments: estimator (0 com = the default, 1 parabolic, 2 gaussian, 3 zero-crossing), along-line
-// smoothing (1 = the default +-12 rows, 0 = off), frames (0 = 16 pairs from memory, 1 = one cached pair).
+// smoothing (1 = the default +-12 rows, 0 = off, 2 = on but the steep step off: the per-row work without
+// it, which this frame's steep line makes ~2/3 of the whole), frames (0 = 16 pairs from memory, 1 = one
+// cached pair).
 BENCHMARK(BM_ExtractTriangulate)
     ->ArgsProduct({{0, 1, 2, 3}, {1}, {0}})
     ->Args({0, 0, 0})
+    ->Args({0, 2, 0})
+    ->Args({0, 2, 1})
     ->Args({0, 1, 1})
     ->Args({0, 0, 1})
     ->Unit(benchmark::kMicrosecond);
+
+// Typical frames (WebcamFrames): the default extractor, smoothing on (1) or off (0) or on without the steep
+// step (2), and triangulation.
+void BM_ExtractWebcam(benchmark::State& state) {
+  const Frames& f = WebcamFrames();
+  rotoscan::laser::ExtractOptions options;
+  if (state.range(0) == 0) options.smooth_half_rows = 0;
+  if (state.range(0) == 2) options.steep_across = false;
+  rotoscan::laser::LineExtractor extractor(options);
+  static const rotoscan::laser::Triangulator triangulator(Camera());
+  rotoscan::laser::Line line;
+  std::vector<Eigen::Vector3d> points;
+  std::vector<int> kept;
+  size_t i = 0, total_points = 0;
+  for (auto _ : state) {
+    const rotoscan::Status status = extractor.Extract(f.on[i], f.off[i], &line);
+    benchmark::DoNotOptimize(status);
+    triangulator.Triangulate(line, Laser(), &points, &kept);
+    total_points += points.size();
+    benchmark::DoNotOptimize(points.data());
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * f.on[0].total());
+  state.counters["points_per_frame"] =
+      static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
+}
+BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Unit(benchmark::kMicrosecond);
 
 // The parts of BM_ExtractTriangulate/0/1/0 alone, on the lines it extracts (per row, then copied each
 // iteration): the along-line smoothing, and the triangulation.
@@ -417,5 +485,7 @@ void BM_StreamRead(benchmark::State& state) { StreamRead(state, GrayFrames()); }
 BENCHMARK(BM_StreamRead)->DenseRange(0, 2)->Unit(benchmark::kMicrosecond);
 void BM_StreamReadBgr(benchmark::State& state) { StreamRead(state, BgrFrames()); }
 BENCHMARK(BM_StreamReadBgr)->DenseRange(0, 2)->Unit(benchmark::kMicrosecond);
+void BM_StreamReadWebcam(benchmark::State& state) { StreamRead(state, WebcamFrames()); }
+BENCHMARK(BM_StreamReadWebcam)->DenseRange(0, 2)->Unit(benchmark::kMicrosecond);
 
 }  // namespace

@@ -38,6 +38,7 @@ using sse2::OutlierBits;
 using sse2::ScanNotch;
 using sse2::ScreenWindows;
 using sse2::SumRange;
+using sse2::SteepWindowSums;
 using sse2::SumsAround;
 #else
 using scalar::CenterOfMassOver;
@@ -50,6 +51,7 @@ using scalar::OutlierBits;
 using scalar::ScanNotch;
 using scalar::ScreenWindows;
 using scalar::SumRange;
+using scalar::SteepWindowSums;
 using scalar::SumsAround;
 #endif
 

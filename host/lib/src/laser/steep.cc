@@ -18,22 +18,31 @@
 #include <Eigen/Core>
 
 #include "extract_steps.h"
+#include "kernels.h"
 
 namespace rotoscan::laser::detail {
 namespace {
 
-// The difference at (row, col) of channel `channel`, with step 1's rule for a laser-on pixel saturated
-// over a laser-off one with headroom (extract.cc): it counts as 255.
-inline int Difference(const cv::Mat& on, const cv::Mat& off, int channel, int threshold, int row, int col) {
-  const int k = col * on.channels() + channel;
-  const int a = on.ptr<uint8_t>(row)[k];
-  const int b = off.ptr<uint8_t>(row)[k];
-  if (a == 255 && b <= 255 - threshold) return 255;
-  return std::max(a - b, 0);
-}
+// The next iteration's stretch of a row reuses the last one's sums when neither end moved more than this.
+constexpr int kSteepEdgePx = 6;
+
+// A row's window sums (WindowSums, but in absolute columns) over [c_first, c_last] (none: c_first > c_last).
+struct RowSums {
+  int c_first = 0, c_last = -1;
+  int64_t count = 0, sum_d = 0, sum_c = 0, sum_dc = 0;
+  // Adds (sign 1) or removes (-1) pixel c, by SteepWindowSums' rule.
+  void Add(const uint8_t* a, const uint8_t* b, int step, int c, int threshold, int min_d, int sign) {
+    const int av = a[c * step], bv = b[c * step];
+    const int d = av == 255 && bv <= 255 - threshold ? 255 : std::max(av - bv, 0);
+    if (d < min_d) return;
+    count += sign;
+    sum_d += sign * d;
+    sum_c += sign * c;
+    sum_dc += int64_t{sign} * d * c;
+  }
+};
 
 }  // namespace
-
 int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                        std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& p = *line_points;
@@ -65,14 +74,26 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     // about k L^3 along^2 / 6.
     const int r0 = p[i].row;
     const double c0 = p[i].column;
-    Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();  // normal equations for (offset, s, k)
+    // The normal equations for (offset, s, k): their matrix holds sums of dr^0..dr^4 over whole rows,
+    // summed in integers (exact, as the doubles were: laser_bench, ~10 % of the step when built as Eigen
+    // outer products), the right-hand side in doubles.
+    int64_t powers[5] = {0, 0, 0, 0, 0};
     Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
     for (size_t k = lo; k <= hi; ++k) {
-      const double dr = p[k].row - r0;
-      const Eigen::Vector3d basis(1.0, dr, dr * dr);
-      normal += basis * basis.transpose();
-      rhs += basis * (p[k].column - c0);
+      const int64_t dr = p[k].row - r0;
+      powers[0] += 1;
+      powers[1] += dr;
+      powers[2] += dr * dr;
+      powers[3] += dr * dr * dr;
+      powers[4] += dr * dr * dr * dr;
+      const double y = p[k].column - c0, drd = static_cast<double>(dr);
+      rhs[0] += y;
+      rhs[1] += drd * y;
+      rhs[2] += (drd * drd) * y;
     }
+    Eigen::Matrix3d normal;
+    for (int row = 0; row < 3; ++row)
+      for (int col = 0; col < 3; ++col) normal(row, col) = static_cast<double>(powers[row + col]);
     const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
     if (ldlt.info() != Eigen::Success) continue;
     const Eigen::Vector3d x = ldlt.solve(rhs);
@@ -99,31 +120,71 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     const double row_reach = (kSteepAlongPx + half * std::abs(s)) / length + 1.0;
     const int r_first = std::max(0, static_cast<int>(std::floor(r0 - row_reach)));
     const int r_last = std::min(rows - 1, static_cast<int>(std::ceil(r0 + row_reach)));
-    const double col_reach = (half + kSteepAlongPx) * length;
     double t = 0;  // the centre's offset across the line from the row's point, px
     bool ok = true;
+    // The weights' level as an integer test: for a whole difference d, d - level > 0 exactly where
+    // d >= floor(level) + 1 (whatever the peak, a whole number of DN or not). No pixel passes over 255.
+    const int min_d = static_cast<int>(std::floor(level)) + 1;
+    if (min_d > 255) continue;
+    const int step = on.channels();
+    // Each row's sums of the last iteration, with their stretch and in absolute columns, so that the next
+    // iteration (t moves the stretch by a pixel or two) adds and removes the pixels at its ends instead of
+    // summing it again: the same integers.
+    thread_local std::vector<RowSums> kept;
+    kept.assign(static_cast<size_t>(r_last - r_first + 1), RowSums{});
     for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
       double sum_w = 0, sum_wt = 0;
       for (int r = r_first; r <= r_last; ++r) {
         const double dr = r - r0;
-        const double centre = c0 + t * length + s * dr + curvature * dr * dr;  // the line's column in row r
-        const int c_first = std::max(0, static_cast<int>(std::floor(centre - col_reach)));
-        const int c_last = std::min(cols - 1, static_cast<int>(std::ceil(centre + col_reach)));
-        for (int c = c_first; c <= c_last; ++c) {
-          const double across = ((c - c0) - s * dr - curvature * dr * dr) / length;
-          const double along = ((c - c0) * s + dr) / length;
-          if (std::abs(across - t) > half || std::abs(along) > kSteepAlongPx) continue;
-          const double w = Difference(on, off, channel, threshold, r, c) - level;
-          if (w <= 0) continue;
-          sum_w += w;
-          sum_wt += w * across;
+        // The window's pixels in row r are a run of columns: across the line (across - t within
+        // +-half) they lie within half L of the centre's line, and along it (|along| <= kSteepAlongPx)
+        // (c - c0) s is within -dr +- kSteepAlongPx L. Over that run the sums are the difference's, in
+        // integers (exact, any order), and the level's and the line's position are taken out per row:
+        // sum of w (c - line) = sum d (c - c_first) - level sum (c - c_first) + (c_first - line) sum w,
+        // across = (c - line) / L. (Before, the same sums pixel by pixel in doubles over the window's
+        // bounding box: the same pixels but for rounding at the window's edge, 1e-12 px; laser_bench:
+        // this step was ~90 % of a frame whose line is steep in half its rows.)
+        const double line = c0 + s * dr + curvature * dr * dr;  // the line's column in row r
+        const double centre = line + t * length;
+        const double along_a = c0 + (-dr - kSteepAlongPx * length) / s;
+        const double along_b = c0 + (-dr + kSteepAlongPx * length) / s;
+        const int c_first = std::max({0, static_cast<int>(std::ceil(std::min(along_a, along_b))),
+                                      static_cast<int>(std::ceil(centre - half * length))});
+        const int c_last = std::min({cols - 1, static_cast<int>(std::floor(std::max(along_a, along_b))),
+                                     static_cast<int>(std::floor(centre + half * length))});
+        if (c_first > c_last) continue;
+        const uint8_t* a = on.ptr<uint8_t>(r) + channel;
+        const uint8_t* b = off.ptr<uint8_t>(r) + channel;
+        RowSums& k = kept[static_cast<size_t>(r - r_first)];
+        if (k.c_first <= k.c_last && std::abs(c_first - k.c_first) <= kSteepEdgePx &&
+            std::abs(c_last - k.c_last) <= kSteepEdgePx && c_first <= k.c_last && k.c_first <= c_last) {
+          // The last stretch's sums, its ends moved to [c_first, c_last].
+          for (int c = c_first; c < k.c_first; ++c) k.Add(a, b, step, c, threshold, min_d, 1);
+          for (int c = k.c_first; c < c_first; ++c) k.Add(a, b, step, c, threshold, min_d, -1);
+          for (int c = k.c_last + 1; c <= c_last; ++c) k.Add(a, b, step, c, threshold, min_d, 1);
+          for (int c = c_last + 1; c <= k.c_last; ++c) k.Add(a, b, step, c, threshold, min_d, -1);
+        } else {
+          const WindowSums sums = SteepWindowSums(a, b, step, c_first, c_last, cols, threshold, min_d);  // kernels.h
+          k.count = sums.count;
+          k.sum_d = sums.sum_d;
+          k.sum_c = sums.sum_offset + int64_t{c_first} * sums.count;
+          k.sum_dc = sums.sum_d_offset + int64_t{c_first} * sums.sum_d;
         }
+        k.c_first = c_first;
+        k.c_last = c_last;
+        if (k.count == 0) continue;
+        // The sums relative to c_first, as SteepWindowSums gives them.
+        const int64_t sum_offset = k.sum_c - int64_t{c_first} * k.count;
+        const int64_t sum_d_offset = k.sum_dc - int64_t{c_first} * k.sum_d;
+        const double w = k.sum_d - level * k.count;
+        sum_w += w;
+        sum_wt += sum_d_offset - level * sum_offset + (c_first - line) * w;  // times L: across
       }
       if (sum_w <= 0) {
         ok = false;
         break;
       }
-      t = sum_wt / sum_w;
+      t = sum_wt / length / sum_w;
     }
     if (!ok) continue;
     // As the smoothing (LimitSmoothing), the point moves by at most its own uncertainty along the row.
