@@ -171,15 +171,21 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       const double dr0 = r - curve.r0;
       const double s = curve.s + 2.0 * curve.k * dr0;
       const double length = std::sqrt(1.0 + s * s);
-      // Across: (column - the curve's column in the pixel's row) / L; along: from the row's point.
       const double reach_across = (kGapSideShift + 1.0) * half;
       const double row_reach = (kGapAlongPx + reach_across * std::abs(s)) / length + 1.0;
       const int r_first = ClampToIndex(std::floor(r - row_reach), rows);
       const int r_last = ClampToIndex(std::ceil(r + row_reach), rows);
       const double col_reach = (reach_across + kGapAlongPx) * length + 1.0;
-      auto across_along = [&](int rr, int c, double* across, double* along) {
-        *across = (c - curve.ColumnAt(rr)) / length;
-        *along = ((c - c0) * s + (rr - r)) / length;
+      // Calls visit(row, column, across, along) for each pixel of the window around the row's point:
+      // across = (column - the curve's column in the pixel's row) / L; along: from the row's point.
+      auto for_each_window_pixel = [&](auto&& visit) {
+        for (int rr = r_first; rr <= r_last; ++rr) {
+          const double cc = curve.ColumnAt(rr);
+          const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
+          const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
+          for (int c = c_first; c <= c_last; ++c)
+            visit(rr, c, (c - cc) / length, ((c - c0) * s + (rr - r)) / length);
+        }
       };
       // The matched filter: the box on the curve, and the boxes kGapSideShift half widths to either side;
       // each split into the halves before and after the row's point along the line.
@@ -187,29 +193,22 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       int count[2][3] = {{0, 0, 0}, {0, 0, 0}};
       double own[3] = {0, 0, 0};  // the row's own pixels of the three boxes
       int own_count[3] = {0, 0, 0};
-      for (int rr = r_first; rr <= r_last; ++rr) {
-        const double cc = curve.ColumnAt(rr);
-        const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
-        const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
-        for (int c = c_first; c <= c_last; ++c) {
-          double across, along;
-          across_along(rr, c, &across, &along);
-          const int box = std::abs(across) <= half                               ? 0
-                          : std::abs(across + kGapSideShift * half) <= half ? 1
-                          : std::abs(across - kGapSideShift * half) <= half ? 2
-                                                                             : -1;
-          if (box < 0) continue;
-          const int d = SignedDifference(on, off, channel, rr, c);
-          if (rr == r) {  // the row's own pixels, at any distance along (a steep line's sides lie far along)
-            own[box] += d;
-            ++own_count[box];
-          }
-          if (std::abs(along) > kGapAlongPx) continue;
-          const int h = along < 0 ? 0 : 1;
-          sum[h][box] += d;
-          ++count[h][box];
+      for_each_window_pixel([&](int rr, int c, double across, double along) {
+        const int box = std::abs(across) <= half                               ? 0
+                        : std::abs(across + kGapSideShift * half) <= half ? 1
+                        : std::abs(across - kGapSideShift * half) <= half ? 2
+                                                                           : -1;
+        if (box < 0) return;
+        const int d = SignedDifference(on, off, channel, rr, c);
+        if (rr == r) {  // the row's own pixels, at any distance along (a steep line's sides lie far along)
+          own[box] += d;
+          ++own_count[box];
         }
-      }
+        if (std::abs(along) > kGapAlongPx) return;
+        const int h = along < 0 ? 0 : 1;
+        sum[h][box] += d;
+        ++count[h][box];
+      });
       // Contrast of the centre box over the sides' mean, per pixel, and its noise; over the whole window
       // (at least min_z times its noise), over each half (at least kGapHalfZ: the line goes on through
       // the row, it does not end at it, as at a shadow's edge) and over the row's own pixels (kGapHalfZ
@@ -238,21 +237,14 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       bool ok = true;
       for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
         double sw = 0, swt = 0, swtt = 0;
-        for (int rr = r_first; rr <= r_last; ++rr) {
-          const double cc = curve.ColumnAt(rr);
-          const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
-          const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
-          for (int c = c_first; c <= c_last; ++c) {
-            double across, along;
-            across_along(rr, c, &across, &along);
-            if (std::abs(along) > kGapAlongPx || std::abs(across - t) > window) continue;
-            const double w = SignedDifference(on, off, channel, rr, c) - noise_dn;
-            if (w <= 0) continue;
-            sw += w;
-            swt += w * across;
-            swtt += w * across * across;
-          }
-        }
+        for_each_window_pixel([&](int rr, int c, double across, double along) {
+          if (std::abs(along) > kGapAlongPx || std::abs(across - t) > window) return;
+          const double w = SignedDifference(on, off, channel, rr, c) - noise_dn;
+          if (w <= 0) return;
+          sw += w;
+          swt += w * across;
+          swtt += w * across * across;
+        });
         if (sw <= 0) {
           ok = false;
           break;
