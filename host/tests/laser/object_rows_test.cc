@@ -417,6 +417,28 @@ void PrintTenths(const char* what, const Tenths& t) {
   std::printf(" of %zu\n", t.size);
 }
 
+// Row r of a laser-on/off pair over an albedo step (0.9 | 0.09, the bright side left or right of step_at):
+// a Gaussian line of peak 220 and the given sigma centred at c plus ambient light, both times the albedo,
+// blurred 2 px after the product (as a camera does), then the noises (drawn on, off, per column).
+template <typename OnNoise, typename OffNoise>
+void DrawAlbedoStepRow(int r, double c, double sigma, double step_at, bool bright_left, double ambient_level,
+                       OnNoise&& on_noise, OffNoise&& off_noise, cv::Mat* on, cv::Mat* off) {
+  const int cols = on->cols;
+  cv::Mat lit(1, cols, CV_64F), ambient(1, cols, CV_64F);
+  for (int x = 0; x < cols; ++x) {
+    const double albedo = (x < step_at) == bright_left ? 0.9 : 0.09;
+    const double laser = 220.0 * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
+    lit.at<double>(0, x) = albedo * (laser + ambient_level);
+    ambient.at<double>(0, x) = albedo * ambient_level;
+  }
+  cv::GaussianBlur(lit, lit, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
+  cv::GaussianBlur(ambient, ambient, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
+  for (int x = 0; x < cols; ++x) {
+    on->at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(lit.at<double>(0, x) + on_noise());
+    off->at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(ambient.at<double>(0, x) + off_noise());
+  }
+}
+
 // Issue 15: the webcam's dark cells read 3-6 DN in the red channel (black level, JPEG). An albedo step
 // inside the line whose dark side reads 3 DN in the laser-off frame is divided out like a brighter one
 // (kAlbedoMinLowDn): the plain centre of mass is pulled ~2 px towards the white side; the divided centre
@@ -435,19 +457,8 @@ TEST(RealFramesTest, AlbedoStepOnABlackLevelDarkCellIsDividedOut) {
     const double c = centre[static_cast<size_t>(r)];
     const double step_at = c + step_offset(rng);
     const bool bright_left = r % 2 == 0;
-    cv::Mat lit(1, cols, CV_64F), ambient(1, cols, CV_64F);
-    for (int x = 0; x < cols; ++x) {
-      const double albedo = (x < step_at) == bright_left ? 0.9 : 0.09;
-      const double laser = 220.0 * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
-      lit.at<double>(0, x) = albedo * (laser + 40.0);
-      ambient.at<double>(0, x) = albedo * 40.0;
-    }
-    cv::GaussianBlur(lit, lit, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
-    cv::GaussianBlur(ambient, ambient, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
-    for (int x = 0; x < cols; ++x) {
-      on.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(lit.at<double>(0, x) + noise(rng));
-      off.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(ambient.at<double>(0, x) + off_noise(rng));
-    }
+    DrawAlbedoStepRow(r, c, sigma, step_at, bright_left, 40.0, [&] { return noise(rng); },
+                      [&] { return off_noise(rng); }, &on, &off);
   }
   ExtractOptions per_row;
   per_row.smooth_half_rows = 0;
@@ -505,19 +516,8 @@ TEST(RealFramesTest, AlbedoDivisionIsUnbiasedUnderTheWebcamBlur) {
     centre[static_cast<size_t>(r)] = c;
     const double step_at = c + step_offset(rng);
     bright_left[static_cast<size_t>(r)] = r % 2 == 0;
-    cv::Mat lit(1, cols, CV_64F), ambient(1, cols, CV_64F);
-    for (int x = 0; x < cols; ++x) {
-      const double albedo = (x < step_at) == bright_left[static_cast<size_t>(r)] ? 0.9 : 0.09;
-      const double laser = 220.0 * std::exp(-0.5 * (x - c) * (x - c) / (sigma * sigma));
-      lit.at<double>(0, x) = albedo * (laser + 60.0);
-      ambient.at<double>(0, x) = albedo * 60.0;
-    }
-    cv::GaussianBlur(lit, lit, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
-    cv::GaussianBlur(ambient, ambient, cv::Size(13, 1), 2.0, 0, cv::BORDER_REPLICATE);
-    for (int x = 0; x < cols; ++x) {
-      on.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(lit.at<double>(0, x) + noise(rng));
-      off.at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(ambient.at<double>(0, x) + noise(rng));
-    }
+    DrawAlbedoStepRow(r, c, sigma, step_at, bright_left[static_cast<size_t>(r)], 60.0, [&] { return noise(rng); },
+                      [&] { return noise(rng); }, &on, &off);
   }
   ExtractOptions per_row;
   per_row.smooth_half_rows = 0;
