@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <random>
 #include <utility>
 #include <vector>
@@ -247,6 +248,65 @@ TEST(ExtractTest, GlintsAndBlobsAreRejectedByWidth) {
   ASSERT_TRUE(line.ok());
   EXPECT_TRUE(line->points.empty());
   EXPECT_EQ(line->stats.bad_width, 2);
+}
+
+// The glint rule (extract.cc, "Glints") is the line's own, not a profile shape's: a triangular line (the
+// profile POV-Ray's slit gives, README "Frames from POV-Ray") saturated over bright cells is not a glint
+// (the earlier foot-to-width rule flagged its white cells: its threshold was a Gaussian's), and a specular
+// lobe on the same line is one. 480 rows, the line drifting 0.05 px per row (every sub-pixel phase), 1 DN
+// noise per frame.
+TEST(ExtractTest, GlintRuleDoesNotDependOnTheLineProfile) {
+  const int rows = 480, cols = 160;
+  auto frames = [&](const std::function<int(int)>& background, const std::function<double(int, double)>& lobe,
+                    cv::Mat* on, cv::Mat* off) {
+    std::mt19937 rng(15);
+    std::normal_distribution<double> noise(0.0, 1.0);
+    on->create(rows, cols, CV_8UC1);
+    off->create(rows, cols, CV_8UC1);
+    for (int r = 0; r < rows; ++r) {
+      const double centre = 70.0 + 0.05 * r;
+      for (int x = 0; x < cols; ++x) {
+        double laser = 0;  // a triangle of 150 DN, 5 px at half maximum, integrated over the pixel
+        for (int k = 0; k < 5; ++k) laser += 150.0 * std::max(0.0, 1.0 - std::abs(x - 0.4 + 0.2 * k - centre) / 5.0) / 5;
+        const double b = background(r);
+        off->at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(b + noise(rng));
+        on->at<uint8_t>(r, x) = cv::saturate_cast<uint8_t>(b + laser + lobe(r, x - centre) + noise(rng));
+      }
+    }
+  };
+  ExtractOptions options;
+  options.noise_dn = 1.0;
+  cv::Mat on, off;
+  // Bright cells (190 DN: the line clips at 65 DN, under half its height) 30 rows tall, dark (40 DN) 50.
+  frames([](int r) { return r % 80 < 30 ? 190 : 40; }, [](int, double) { return 0.0; }, &on, &off);
+  auto checker = ExtractLine(on, off, options);
+  ASSERT_TRUE(checker.ok());
+  int saturated = 0;
+  for (const LinePoint& p : checker->points) saturated += (p.flags & kFlagSaturated) != 0;
+  EXPECT_GT(saturated, 150);  // the white cells' rows
+  EXPECT_GE(checker->points.size(), static_cast<size_t>(rows - 10));
+  EXPECT_EQ(checker->stats.glints, 0);
+  // A lobe on a dark surface: 400 DN at row 240, a Gaussian of 6 px across and 15 rows along the line.
+  auto lobe = [](int r, double x) { return 400.0 * std::exp(-0.5 * (r - 240) * (r - 240) / 225.0 - 0.5 * x * x / 36.0); };
+  frames([](int) { return 40; }, lobe, &on, &off);
+  auto glint = ExtractLine(on, off, options);
+  ASSERT_TRUE(glint.ok());
+  int core = 0, core_flagged = 0, far_flagged = 0;
+  for (const LinePoint& p : glint->points) {
+    const bool flagged = (p.flags & kFlagGlint) != 0;
+    if (std::abs(p.row - 240) <= 20) {  // the lobe over 165 DN
+      ++core;
+      core_flagged += flagged;
+    } else if (std::abs(p.row - 240) > 45) {  // the lobe under 5 DN
+      far_flagged += flagged;
+    }
+  }
+  std::printf("triangular line: %d of %zu rows saturated, %d glints; with a lobe: %d of %d rows flagged in its "
+              "middle, %d far from it\n",
+              saturated, checker->points.size(), checker->stats.glints, core_flagged, core, far_flagged);
+  EXPECT_EQ(core, 41);
+  EXPECT_GE(core_flagged, core * 9 / 10);
+  EXPECT_EQ(far_flagged, 0);
 }
 
 TEST(ExtractTest, SaturatedLaserOffFrameHidesTheLaser) {

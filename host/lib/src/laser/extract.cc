@@ -85,11 +85,17 @@
 //
 // Glints (kFlagGlint; issue 15: on real frames 17 % of the rows near a glint were over 1 px off). The
 // laser's specular lobe on a glossy surface adds a soft blob, tens of pixels across, centred near the
-// line: where it meets the line, the line is overexposed several times over, and its saturated core
-// widens more than its foot, so that the run above 0.15 of the peak is under 1.3 times the half-maximum
-// extent (a Gaussian clipped at its height gives 1.66, at a fifth of its height 1.23). A glint is a
+// line: where it meets the line, the line is overexposed several times over and widens, down to its
+// foot (the run above 0.15 of the peak), while a line that is only clipped (a bright surface saturating
+// the laser-on frame) widens at half maximum far more than at its foot (a triangular sheet's foot not at
+// all; a Gaussian's by ~25 % at 3 times overexposed). So a saturated point's foot is compared with the
+// same line's: over 1.15 times the median foot of the points 17 to 96 rows away (the earlier rule, foot
+// under 1.3 times the half-maximum extent, was a Gaussian's and took every saturated row of POV-Ray's
+// triangular sheet for a glint; still flagged: a compact bright patch on an otherwise unsaturated
+// Gaussian line, our renderer's bright checker at 1280x960, 33 rows). A glint is a
 // compact stretch of such rows (3 in 4 of the rows within +-8), not a line overexposed all along (at
-// most half of the points within +-96 rows): its points are flagged, their quality halved, their
+// most half of the points within +-96 rows), grown through the saturated rows around it whose foot is
+// still over 1.05 times theirs: its points are flagged, their quality halved, their
 // uncertainty widened by 1.6 px (the glossy set's glint rows were 0.6-1.0 px off). Tested against the
 // renderer's truth (RenderedLineTest.GlintsAreFlaggedWhereTheTruthHasThem: the glint is where the glossy
 // scene's laser frame exceeds the same scene rendered matte).

@@ -76,12 +76,27 @@ constexpr int kAlbedoMaxWindow = 256;
 // rows 4-8 px wide 0.49-0.60 px, 8-12 px wide 0.26-0.30 px; so it is scaled by the frame's median width
 // over the point's (when over 1).
 constexpr double kAlbedoResidualPx = 1.0;
-// Glints (FlagGlints, design notes "Glints"): a saturated row is overexposed when the run above 0.15 of
-// its peak is under kGlintFootRatio times its half-maximum extent (a Gaussian clipped at a fifth of its
-// height: 1.23; at its height: 1.66); a point is a glint when at least kGlintShare of the rows within
-// kGlintHalfRows of it are overexposed points, and at most kGlintMaxShare of those within kGlintReachRows
-// (a compact stretch, not a line overexposed all along).
-constexpr double kGlintFootRatio = 1.3;
+// Glints (FlagGlints, design notes "Glints"): the line's foot (the centre of mass's run, above 0.15 of
+// the peak) against the same line's own: a saturated point is a glint's core when its foot is over
+// kGlintFootRatio times the median foot of the frame's points kGlintNearRows+1 to kGlintReachRows rows
+// away (either side; at least kGlintMinReference of them), and a point is a glint when at least
+// kGlintShare of the rows within kGlintHalfRows of it are core points, and at most kGlintMaxShare of
+// those within kGlintReachRows (a compact stretch, not a line overexposed all along). The foot, not the
+// half-maximum width nor their ratio: clipping widens a line's half-maximum width whatever its profile
+// (POV-Ray's bright checker: 7.5 px saturated against 5 px on the dark cells at 640x480) and its foot
+// hardly at all (8-9 against 7-8 px; a triangle's foot cannot outgrow its base), while a glint's lobe
+// widens both (glossy set: foot 17 to 22 px). Measured on the glossy set (truth: the glossy laser frame
+// against the matte one) and POV-Ray's bright checker (README "Frames from POV-Ray"): 1.15 to 1.2 flag
+// the glint's middle and no POV-Ray row; 1.12 flags 91-167 POV-Ray rows at 1280x960 (and 81-128 of our
+// renderer's at 640x480); 1.25 misses the glint.
+constexpr double kGlintFootRatio = 1.15;
+constexpr int kGlintNearRows = 16;
+constexpr int kGlintMinReference = 8;
+// The glint's extent: from its flagged points (core and skirt) the stretch grows through neighbouring
+// saturated points (at most 2 rows apart, kGlintSkirtPxPerRow px per row) whose foot is over
+// kGlintGrowRatio times their median (the lobe's rising and falling ends: glossy set, 111 of 117 rows in
+// a glint flagged with it, 98 without).
+constexpr double kGlintGrowRatio = 1.05;
 constexpr int kGlintHalfRows = 8;
 constexpr double kGlintShare = 0.75;
 constexpr int kGlintReachRows = 96;
@@ -230,8 +245,8 @@ struct PointTerms {
   double peak;              // DN
   double left, right;       // sums of the laser-off row over the centre of mass's run either side of
   double left_n, right_n;   // the centre's pixel, and their pixel counts (at least 1)
-  bool overexposed;         // saturated, and its foot (the centre of mass's run) under kGlintFootRatio
-                            // times its half-maximum extent (FlagGlints)
+  bool overexposed;         // saturated, its centre by kCenterOfMass (a glint's candidate: FlagGlints)
+  int foot;                 // kCenterOfMass: the centre of mass's run, px (FlagGlints); else 0
 };
 
 // Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line).

@@ -203,8 +203,9 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   terms->width_num = c.width_num;
   terms->width_den = c.width_den;
   terms->peak = c.peak;
-  terms->overexposed = (flags & kFlagSaturated) != 0 && o.estimator == Estimator::kCenterOfMass &&
-                       c.com_last - c.com_first + 1 < kGlintFootRatio * (c.last - c.first + 1);
+  const bool com = o.estimator == Estimator::kCenterOfMass;
+  terms->overexposed = (flags & kFlagSaturated) != 0 && com;
+  terms->foot = com ? c.com_last - c.com_first + 1 : 0;
   // Texture across the line (ScorePoints): the laser-off row either side of the centre's pixel.
   const int middle = static_cast<int>(column + 0.5);
   const SidesSum sides = SumsAround(b, c.com_first, middle, c.com_last, cols);
@@ -334,15 +335,46 @@ int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_p
   std::vector<LinePoint>& points = *line_points;
   const size_t n = points.size();
   if (n == 0) return 0;
-  // Prefix counts over the frame's rows of the points and of the overexposed ones.
+  if (std::none_of(terms, terms + n, [](const PointTerms& t) { return t.overexposed; })) return 0;
+  // Each saturated point's reference: the median foot of the points kGlintNearRows+1 to kGlintReachRows
+  // rows away, from a histogram of the feet that slides with the rows (the points are in row order, one
+  // a row): a point enters it at kGlintReachRows rows ahead, leaves it at kGlintNearRows, comes back at
+  // kGlintNearRows behind and leaves for good past kGlintReachRows.
+  constexpr int kMaxFoot = 255;
+  auto foot_of = [&](size_t j) { return std::clamp(terms[j].foot, 0, kMaxFoot); };
+  thread_local std::vector<int> histogram;
+  thread_local std::vector<float> reference;  // the median foot, or 0 where too few points
+  histogram.assign(kMaxFoot + 1, 0);
+  reference.assign(n, 0.0f);
+  int in_reference = 0;
+  size_t far_ahead = 0, near_ahead = 0, near_behind = 0, far_behind = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const int row = points[i].row;
+    for (; far_ahead < n && points[far_ahead].row <= row + kGlintReachRows; ++far_ahead, ++in_reference)
+      ++histogram[static_cast<size_t>(foot_of(far_ahead))];
+    for (; near_ahead < n && points[near_ahead].row <= row + kGlintNearRows; ++near_ahead, --in_reference)
+      --histogram[static_cast<size_t>(foot_of(near_ahead))];
+    for (; near_behind < n && points[near_behind].row < row - kGlintNearRows; ++near_behind, ++in_reference)
+      ++histogram[static_cast<size_t>(foot_of(near_behind))];
+    for (; far_behind < n && points[far_behind].row < row - kGlintReachRows; ++far_behind, --in_reference)
+      --histogram[static_cast<size_t>(foot_of(far_behind))];
+    if (!terms[i].overexposed || in_reference < kGlintMinReference) continue;
+    // The median (the lower one of an even count).
+    int below = 0, foot = 0;
+    while (below + histogram[static_cast<size_t>(foot)] <= (in_reference - 1) / 2)
+      below += histogram[static_cast<size_t>(foot++)];
+    reference[i] = static_cast<float>(foot);
+  }
+  // Prefix counts over the frame's rows of the points and of the cores.
   thread_local std::vector<int> all, over;
   all.assign(static_cast<size_t>(rows) + 1, 0);
   over.assign(static_cast<size_t>(rows) + 1, 0);
   bool any = false;
   for (size_t i = 0; i < n; ++i) {
+    const bool core = reference[i] > 0 && terms[i].foot > kGlintFootRatio * reference[i];
     all[static_cast<size_t>(points[i].row) + 1] = 1;
-    over[static_cast<size_t>(points[i].row) + 1] = terms[i].overexposed ? 1 : 0;
-    any = any || terms[i].overexposed;
+    over[static_cast<size_t>(points[i].row) + 1] = core ? 1 : 0;
+    any = any || core;
   }
   if (!any) return 0;
   for (int r = 0; r < rows; ++r) {
@@ -357,8 +389,8 @@ int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_p
   glint.assign(n, 0);
   bool any_core = false;
   for (size_t i = 0; i < n; ++i) {
-    if (!terms[i].overexposed) continue;
     const int row = points[i].row;
+    if (over[static_cast<size_t>(row) + 1] == over[static_cast<size_t>(row)]) continue;  // not a core point
     if (count(over, row, kGlintHalfRows) < kGlintShare * (2 * kGlintHalfRows + 1)) continue;
     if (count(over, row, kGlintReachRows) > kGlintMaxShare * count(all, row, kGlintReachRows)) continue;
     glint[i] = 1;
@@ -380,6 +412,17 @@ int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_p
       glint[j] = 2;
     }
   }
+  // The glint's extent (kGlintGrowRatio): down the rows from each flagged point, then up.
+  auto grows = [&](size_t from, size_t to) {
+    const int gap = std::abs(points[to].row - points[from].row);
+    return glint[from] != 0 && glint[to] == 0 && gap <= 2 && reference[to] > 0 &&
+           terms[to].foot > kGlintGrowRatio * reference[to] &&
+           std::abs(points[to].column - points[from].column) <= kGlintSkirtPxPerRow * static_cast<float>(gap);
+  };
+  for (size_t i = 1; i < n; ++i)
+    if (grows(i - 1, i)) glint[i] = 3;
+  for (size_t i = n - 1; i-- > 0;)
+    if (grows(i + 1, i)) glint[i] = 3;
   int flagged = 0;
   for (size_t i = 0; i < n; ++i) {
     if (glint[i] == 0) continue;
