@@ -56,8 +56,16 @@ bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int thresh
     double sum_w = 0, sum_wt = 0;
     for (int r = r_first; r <= r_last; ++r) {
       const double line = a + s * r;
-      const int c_first = std::max(0, static_cast<int>(std::ceil(line + (t - half) * length - 1.0)));
-      const int c_last = std::min(on.cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)));
+      // The run of columns within both windows (the per-pixel test below decides; these bounds only skip
+      // pixels it would reject, with a pixel to spare): across, |across - t| <= half; along, (dr + s dc) / L
+      // within +-kSteepAlongPx.
+      const double dr0 = r - r0;
+      const double along_a = foot_c + (-dr0 - kSteepAlongPx * length) / s;
+      const double along_b = foot_c + (-dr0 + kSteepAlongPx * length) / s;
+      const int c_first = std::max({0, static_cast<int>(std::ceil(line + (t - half) * length - 1.0)),
+                                    static_cast<int>(std::floor(std::min(along_a, along_b))) - 1});
+      const int c_last = std::min({on.cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)),
+                                   static_cast<int>(std::ceil(std::max(along_a, along_b))) + 1});
       const uint8_t* pa = on.ptr<uint8_t>(r) + channel;
       const uint8_t* pb = off.ptr<uint8_t>(r) + channel;
       for (int c = c_first; c <= c_last; ++c) {
