@@ -188,12 +188,13 @@ BENCHMARK(BM_ExtractTriangulate)
     ->Unit(benchmark::kMicrosecond);
 
 // Typical frames (WebcamFrames): the default extractor, smoothing on (1) or off (0) or on without the steep
-// step (2), and triangulation.
+// step (2) or without the line-end step (3, ends.cc), and triangulation.
 void BM_ExtractWebcam(benchmark::State& state) {
   const Frames& f = WebcamFrames();
   rotoscan::laser::ExtractOptions options;
   if (state.range(0) == 0) options.smooth_half_rows = 0;
   if (state.range(0) == 2) options.steep_across = false;
+  if (state.range(0) == 3) options.line_ends = false;
   rotoscan::laser::LineExtractor extractor(options);
   static const rotoscan::laser::Triangulator triangulator(Camera());
   rotoscan::laser::Line line;
@@ -212,7 +213,7 @@ void BM_ExtractWebcam(benchmark::State& state) {
   state.counters["points_per_frame"] =
       static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
 }
-BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Arg(3)->Unit(benchmark::kMicrosecond);
 
 // The parts of BM_ExtractTriangulate/0/1/0 alone, on the lines it extracts (per row, then copied each
 // iteration): the along-line smoothing, and the triangulation.

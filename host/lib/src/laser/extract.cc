@@ -462,6 +462,8 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   // A steep line measured across itself (steep.cc), on frames whose noise was measured on lit pixels:
   // on the machine-vision preset's dark, clean frames the row's own centre is better (extract_steps.h).
   if (o.steep_across && stats.noise_on_lit) detail::RecentreSteepLines(on, off, channel, threshold, &line->points);
+  // A steep stretch's end rows, whose row profile the line's end cuts, measured across the line (ends.cc).
+  if (o.line_ends && stats.noise_on_lit) detail::RecentreLineEnds(on, off, channel, threshold, &line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;
     const size_t n = points.size();

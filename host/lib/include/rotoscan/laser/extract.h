@@ -126,6 +126,10 @@ struct ExtractOptions {
   // measured across the line from the pixels of neighbouring rows, not along its row (steep.cc); only on
   // frames whose noise was measured on lit pixels (LineStats::noise_on_lit).
   bool steep_across = true;
+  // The last rows of a steep stretch, whose row profile the line's end (a rim, a silhouette, a shadow) cuts
+  // on one side, measured across the line with the direction of the stretch's interior (ends.cc); only on
+  // frames whose noise was measured on lit pixels.
+  bool line_ends = true;
   // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
   // stretch's curve with a matched filter over several rows, a threshold on their summed difference
   // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit

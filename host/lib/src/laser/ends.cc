@@ -1,0 +1,187 @@
+// RecentreLineEnds (extract_steps.h): the last rows of a steep stretch of line, whose row profile the
+// line's end cuts, measured across the line as it runs before its end.
+//
+// Why (issue 15; TableRowsTest.MissedRowsBySignal, opt-in, with ROTOSCAN_TABLE_ROWS_DUMP=end): where a
+// steep line (s columns per row) ends (the table's rim, the object's silhouette or its junction with the
+// table's line), a row near the end crosses the line obliquely, and the part of its profile on the side
+// where the line would go on has no light: the profile is one-sided and its centre of mass is pulled
+// towards the lit side. On the webcam sets (8 steps x 2 lasers, f/4, before this step) 123 of the rows over
+// 1 px across were within 4 rows of a line's end (the truth's, or where the other part's rows begin), 56 of
+// them in its last two rows; in all but 8 the row's own estimate (no steep step, no smoothing) was over
+// 1 px off too, and the noise-free render's own centre of mass in the row was 1.5-2.2 px off along the row
+// (median; over 1 px across in 42 of them): the light is there, the profile is cut. steep.cc measures a
+// steep point across its line, but with the direction from the neighbouring rows' points, which near an
+// end are the cut rows themselves (pulled the same way), and moves a point by at most its uncertainty.
+//
+// The step: at each open end of a stretch (steep.cc's: rows at most 2 apart, at most kSteepMaxStepPx columns
+// per row; not at the frame's first or last rows, and not where the line goes on after a gap of at most
+// kEndResumeRows rows: a shadow, whose cut's angle is unknown, see below), a straight line (column against
+// row, least squares) through kEndFitRows points of the stretch from kEndMaxRows points in from the end
+// (at least kSteepMinPoints; the residual test of steep.cc, as loose as gaps.cc's: kEndMaxResidual) gives
+// the direction; it must be steep (kSteepSlope). The end rows, those within twice the interior's median
+// row width (full width at half maximum) over the slope (at most kEndMaxRows), are put where the centre of
+// mass across that line (the difference above kComLevelNum / kComScale of the point's peak, over the
+// pixels within kSteepAlongPx along the line from the row's foot on it and the line's half width across,
+// kSteepIterations times as steep.cc) crosses the row. A point moves by at most its uncertainty or
+// kEndMaxMoveWidths of its row width, whichever is larger.
+//
+// Where the cut is square to the line, the pixels past it carry no light and the centre across is not
+// moved by it (LineEndTest: the last 6 rows of a synthetic line cut so, over 1 px 24 -> 14 of 60, RMS
+// 1.11 -> 0.84 px). Where the cut is oblique (a cut along the rows, as GapFillTest's shadow; the table's
+// rim), the lit part of the window is lopsided across and its centre is pulled too: GapFillTest's
+// shadow's edge rows went from 2 to 7 over 1 px until ends followed by the same line were left out.
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "extract_steps.h"
+
+namespace rotoscan::laser::detail {
+namespace {
+
+// The across-the-line centre of mass around (r0, foot) on the line column = a + s row, its offset t
+// across from the line (px); false where no pixel has weight.
+bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int threshold, double a, double s, int r0,
+                  double half, double level, double* t_out) {
+  const int step = on.channels();
+  const double length = std::sqrt(1.0 + s * s);
+  // The unit vectors along (row, column) = (1, s) / L and across (-s, 1) / L; the foot: the line's point in
+  // row r0.
+  const double foot_c = a + s * r0;
+  const double row_reach = (kSteepAlongPx + half * std::abs(s)) / length + 1.0;
+  const int r_first = std::max(0, static_cast<int>(std::floor(r0 - row_reach)));
+  const int r_last = std::min(on.rows - 1, static_cast<int>(std::ceil(r0 + row_reach)));
+  double t = 0;
+  for (int iteration = 0; iteration < kSteepIterations; ++iteration) {
+    double sum_w = 0, sum_wt = 0;
+    for (int r = r_first; r <= r_last; ++r) {
+      const double line = a + s * r;
+      // The run of columns within both windows (the per-pixel test below decides; these bounds only skip
+      // pixels it would reject, with a pixel to spare): across, |across - t| <= half; along, (dr + s dc) / L
+      // within +-kSteepAlongPx.
+      const double dr0 = r - r0;
+      const double along_a = foot_c + (-dr0 - kSteepAlongPx * length) / s;
+      const double along_b = foot_c + (-dr0 + kSteepAlongPx * length) / s;
+      const int c_first = std::max({0, static_cast<int>(std::ceil(line + (t - half) * length - 1.0)),
+                                    static_cast<int>(std::floor(std::min(along_a, along_b))) - 1});
+      const int c_last = std::min({on.cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)),
+                                   static_cast<int>(std::ceil(std::max(along_a, along_b))) + 1});
+      const uint8_t* pa = on.ptr<uint8_t>(r) + channel;
+      const uint8_t* pb = off.ptr<uint8_t>(r) + channel;
+      for (int c = c_first; c <= c_last; ++c) {
+        const double dr = r - r0, dc = c - foot_c;
+        const double along = (dr + s * dc) / length;
+        const double across = (dc - s * dr) / length;
+        if (std::abs(along) > kSteepAlongPx || std::abs(across - t) > half) continue;
+        const int av = pa[c * step], bv = pb[c * step];
+        const int d = av == 255 && bv <= 255 - threshold ? 255 : std::max(av - bv, 0);
+        const double w = d - level;
+        if (w <= 0) continue;
+        sum_w += w;
+        sum_wt += w * across;
+      }
+    }
+    if (sum_w <= 0) return false;
+    t = sum_wt / sum_w;
+  }
+  *t_out = t;
+  return true;
+}
+
+}  // namespace
+
+int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
+                     std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& p = *line_points;
+  const int n = static_cast<int>(p.size());
+  auto joined = [&](int x, int y) {
+    const int gap = p[y].row - p[x].row;
+    return gap <= 2 && std::abs(p[y].column - p[x].column) <= kSteepMaxStepPx * gap;
+  };
+  std::vector<float> moved(p.size());
+  for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].column;
+  int count = 0;
+  int start = 0;
+  std::vector<double> widths;
+  while (start < n) {
+    int end = start;  // inclusive
+    while (end + 1 < n && joined(end, end + 1)) ++end;
+    // Where the line goes on after a gap (a shadow, rows the row pass missed: gaps.cc's), the end is no
+    // line's end: the cut's angle is unknown there (a cut along the rows leaves each row's profile whole,
+    // and the centre across would be pulled instead).
+    auto resumes = [&](int x, int y) {
+      const int gap = p[static_cast<size_t>(y)].row - p[static_cast<size_t>(x)].row;
+      return gap <= kEndResumeRows &&
+             std::abs(p[static_cast<size_t>(y)].column - p[static_cast<size_t>(x)].column) <= kSteepMaxStepPx * gap;
+    };
+    const bool open_top = p[static_cast<size_t>(start)].row > 1 && !(start > 0 && resumes(start - 1, start));
+    const bool open_bottom = p[static_cast<size_t>(end)].row < on.rows - 2 && !(end + 1 < n && resumes(end, end + 1));
+    // Each end: dir +1 from the top end down the stretch, -1 from the bottom end up.
+    for (const int dir : {1, -1}) {
+      if (dir == 1 ? !open_top : !open_bottom) continue;
+      const int first = dir == 1 ? start : end;  // the end point
+      const int len = end - start + 1;
+      if (len < kEndMaxRows + kSteepMinPoints) break;  // too short for an interior fit
+      // The interior: kEndMaxRows points in from the end, then kEndFitRows points.
+      const int fit_from = first + dir * kEndMaxRows;
+      int fit_to = fit_from + dir * (kEndFitRows - 1);
+      fit_to = dir == 1 ? std::min(fit_to, end) : std::max(fit_to, start);
+      const int m = std::abs(fit_to - fit_from) + 1;
+      if (m < kSteepMinPoints) continue;
+      // A straight line column = a + s row through the interior's points (rows relative to `base`), by
+      // least squares.
+      double sr = 0, sc = 0, srr = 0, src = 0;
+      const int base = p[static_cast<size_t>(fit_from)].row;
+      widths.clear();
+      for (int k = fit_from; k != fit_to + dir; k += dir) {
+        const LinePoint& q = p[static_cast<size_t>(k)];
+        const double r = q.row - base;
+        sr += r;
+        sc += q.column;
+        srr += r * r;
+        src += r * q.column;
+        widths.push_back(q.width);
+      }
+      const double det = m * srr - sr * sr;
+      if (det <= 0) continue;
+      const double s = (m * src - sr * sc) / det;
+      const double a0 = (sc - s * sr) / m;  // at row `base`
+      if (std::abs(s) < kSteepSlope) continue;
+      const double length = std::sqrt(1.0 + s * s);
+      // A line: the points' RMS distance along their rows from the fit (per degree of freedom) at most
+      // kEndMaxResidual (1 + L) px (steep.cc's test, as loose as gaps.cc's: speckle scatters a weak steep
+      // line's rows by more than steep.cc's 0.35).
+      double residual2 = 0;
+      for (int k = fit_from; k != fit_to + dir; k += dir) {
+        const LinePoint& q = p[static_cast<size_t>(k)];
+        const double e = q.column - (a0 + s * (q.row - base));
+        residual2 += e * e;
+      }
+      if (residual2 > kEndMaxResidual * kEndMaxResidual * (1.0 + length) * (1.0 + length) * (m - 2)) continue;
+      std::nth_element(widths.begin(), widths.begin() + static_cast<long>(widths.size() / 2), widths.end());
+      const double width = widths[widths.size() / 2];
+      // The end rows: within twice the row width over |s| rows of the end point (at most kEndMaxRows).
+      const int reach = std::min(kEndMaxRows, static_cast<int>(std::ceil(2.0 * width / std::abs(s))));
+      const double a = a0 - s * base;  // column = a + s row
+      for (int k = first; k != first + dir * kEndMaxRows; k += dir) {
+        LinePoint& q = p[static_cast<size_t>(k)];
+        if (std::abs(q.row - p[static_cast<size_t>(first)].row) >= reach) break;
+        const double half = std::max(kSteepMinHalfPx, width / length);
+        const double level = kComLevelNum * static_cast<double>(q.peak) / kComScale;
+        double t = 0;
+        if (!CentreAcross(on, off, channel, threshold, a, s, q.row, half, level, &t))
+          continue;
+        const double target = a + s * q.row + t * length;
+        const double limit = std::max(static_cast<double>(q.uncertainty_px), kEndMaxMoveWidths * q.width);
+        moved[static_cast<size_t>(k)] =
+            static_cast<float>(q.column + std::clamp(target - q.column, -limit, limit));
+        ++count;
+      }
+    }
+    start = end + 1;
+  }
+  for (int i = 0; i < n; ++i) p[static_cast<size_t>(i)].column = moved[static_cast<size_t>(i)];
+  return count;
+}
+
+}  // namespace rotoscan::laser::detail
