@@ -118,9 +118,11 @@ constexpr int kLineEndRows = 8;
 // within kSteepFitRows rows either side (a stretch: rows at most 2 apart, at most kSteepMaxStepPx columns
 // per row; a parabola through at least kSteepMinPoints) is at least kSteepSlope columns per row; its centre is the
 // centre of mass across that curve of the difference above 0.15 of its peak, within kSteepAlongPx along
-// the line and the line's width (at least kSteepMinHalfPx) across it, kSteepIterations times, each around
-// the last centre. Chosen on the webcam test's 3 steps (glossy / textured, rows > 1 px across the line;
-// before: 3.49 / 4.41 %): slope 1.5, 4 px along, straight: 2.74 / 4.15 %; slope 1.0: 2.08 / 3.96 %; 8 px
+// the line and the line's width (at least kSteepMinHalfPx) across it, in one pass around the stretch's
+// fitted curve (tenth session, rfsteepfast; before, kSteepIterations windows per point, each around the
+// last centre, as gaps.cc's windows still are). Chosen on the webcam test's 3 steps (glossy / textured,
+// rows > 1 px across the line; before: 3.49 / 4.41 %): slope 1.5, 4 px along, straight: 2.74 / 4.15 %;
+// slope 1.0: 2.08 / 3.96 %; 8 px
 // along: 2.03 / 4.02 %. Straight, Spot's machine-vision scan (100 frames per row, 0.208 px before) went to
 // 0.241 px: a curved line's centre of mass lies inside its curve; with the parabola over 4 rows 0.212, but
 // the table's straight line lost (3.10 / 4.50 %: the curvature of 9 noisy points is noise); over 8 rows
