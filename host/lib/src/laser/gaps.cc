@@ -210,7 +210,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
           if ((a0 > kGapAlongPx && a1 > kGapAlongPx) || (a0 < -kGapAlongPx && a1 < -kGapAlongPx)) return;
           // On a sloped line only a band of the row's columns lies within kGapAlongPx along: those between
           // the columns where along is -kGapAlongPx and kGapAlongPx, a pixel more either side (at a slope
-          // of at least kGapBandMinSlope a pixel is 0.05 px along at least, far above rounding).
+          // of at least kGapBandMinSlope a column moves along by ~0.05 px or more, far above rounding).
           if (std::abs(s) >= kGapBandMinSlope) {
             const double e0 = c0 + (-kGapAlongPx * length - (rr - r)) / s;
             const double e1 = c0 + (kGapAlongPx * length - (rr - r)) / s;
