@@ -4,9 +4,9 @@
 // Why (issue 15, TableRowsTest.MissedRowsBySignal): on the webcam sets the table top's line peaks at
 // ~13 DN over a noise of 1.4-1.8 DN, and its rows that the row pass misses (12 % / 32 % of the table's
 // rows, glossy / textured, 8 steps) nearly all lie in gaps between found rows of the same line, and all
-// but 2 of 1,012 carry at least 4 sigma in the noise-free render (85 % at least 6 sigma): fully developed speckle
-// takes a grain out of the line's peak (the missed rows' noisy peak is 0.75 of the clean one, median) and
-// the row falls under the 6 sigma threshold. One row's peak cannot be trusted lower (DetectionFloorTest:
+// but 2 of 1,012 carry at least 4 sigma in the noise-free render (85 % at least 6 sigma): fully developed
+// speckle takes a grain out of the line's peak (the missed rows' noisy peak is 0.75 of the clean one, median)
+// and the row falls under the 6 sigma threshold. One row's peak cannot be trusted lower (DetectionFloorTest:
 // 4 sigma gives 25 false rows in 5,760 on laser-off pairs), but the line's pixels over several rows can:
 // speckle grains average out along the line, and noise falls as the square root of the pixels summed.
 //
@@ -22,9 +22,9 @@
 // square root of the boxes' pixel counts times kGapCorrelation, and each half of the window along the
 // line (before and after the row's point) and the row's own pixels reach kGapHalfZ on their own: the line
 // goes on through the row and does not end at it (a shadow's edge), and the row itself holds its light
-// (ExtractTest.RowsWithoutLaserGiveNoPoints: a line on every other row only). Its centre: the centre of mass across the curve of the
-// difference above one sigma within the line's width (two iterations, as steep.cc), combined with the
-// curve's own (offset 0) by their inverse variances.
+// (ExtractTest.RowsWithoutLaserGiveNoPoints: a line on every other row only). Its centre: the centre of mass
+// across the curve of the difference above one sigma within the line's width (two iterations, as steep.cc),
+// combined with the curve's own (offset 0) by their inverse variances.
 //
 // The threshold, as the row pass's 6 sigma (DetectionFloorTest): GapFillTest.NoRowsFilledOnLaserOffPairs
 // offers the gaps of real stretches (rows 3 and 4 of every 7 punched out) to a pair of laser-off frames of
@@ -72,6 +72,9 @@ constexpr double kGapMaxResidual = 0.8;
 constexpr int kGapFitRows = 12;
 constexpr int kGapMinSide = 2;
 constexpr double kGapAlongPx = 4.0;
+// The slope (columns per row) from which a window's row is visited only where it lies within kGapAlongPx
+// along the line.
+constexpr double kGapBandMinSlope = 0.05;
 constexpr double kGapSideShift = 3.0;
 constexpr double kGapHalfZ = 3.0;
 constexpr double kGapCorrelation = 3.0;
@@ -82,10 +85,7 @@ constexpr double kGapMinUncertaintyPx = 0.5;
 constexpr double kGapQuality = 0.5;
 
 // The signed difference at (row, col), with step 1's rule for a saturated laser-on pixel (steep.cc).
-inline int SignedDifference(const cv::Mat& on, const cv::Mat& off, int channel, int row, int col) {
-  const int k = col * on.channels() + channel;
-  const int a = on.ptr<uint8_t>(row)[k];
-  const int b = off.ptr<uint8_t>(row)[k];
+inline int SignedDifference(int a, int b) {
   if (a == 255 && b < 255) return 255 - b;
   return a - b;
 }
@@ -97,6 +97,12 @@ inline int ClampToIndex(double x, int size) {
   if (!(x < size - 1)) return size - 1;
   return static_cast<int>(x);
 }
+
+// A pixel of a row's window within kGapAlongPx along the line, for the centre of mass.
+struct NearPixel {
+  double across;
+  int difference;
+};
 
 struct Curve {
   double c0 = 0, s = 0, k = 0;  // column = c0 + s dr + k dr^2 about row r0
@@ -120,6 +126,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
     return gap >= 1 && gap <= kGapMaxRows && std::abs(p[b].column - p[a].column) <= kSteepMaxStepPx * gap;
   };
   std::vector<LinePoint> filled;
+  std::vector<NearPixel> near;
   for (size_t i = 0; i + 1 < n; ++i) {
     const int gap = p[i + 1].row - p[i].row;
     if (gap < 2 || !joined(i, i + 1)) continue;
@@ -175,40 +182,56 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       const double row_reach = (kGapAlongPx + reach_across * std::abs(s)) / length + 1.0;
       const int r_first = ClampToIndex(std::floor(r - row_reach), rows);
       const int r_last = ClampToIndex(std::ceil(r + row_reach), rows);
+      // The window's columns: only those within reach_px of the curve across (at least the outer boxes'
+      // edge, (kGapSideShift + 1) half widths, and the centre of mass's reach, its window from a centre
+      // within a half width; plus a pixel) can count; the others are not visited. The original reach
+      // along the line, (reach_across + kGapAlongPx) L + 1, only ever added pixels that no test keeps.
+      const double window = std::max(kSteepMinHalfPx, width_across);
       const double col_reach = (reach_across + kGapAlongPx) * length + 1.0;
-      // Calls visit(row, column, across, along) for each pixel of the window around the row's point:
-      // across = (column - the curve's column in the pixel's row) / L; along: from the row's point.
-      auto for_each_window_pixel = [&](auto&& visit) {
-        for (int rr = r_first; rr <= r_last; ++rr) {
-          const double cc = curve.ColumnAt(rr);
-          const int c_first = ClampToIndex(std::floor(cc - col_reach), cols);
-          const int c_last = ClampToIndex(std::ceil(cc + col_reach), cols);
-          for (int c = c_first; c <= c_last; ++c)
-            visit(rr, c, (c - cc) / length, ((c - c0) * s + (rr - r)) / length);
+      const double reach_px = std::min(col_reach, std::max(reach_across, half + window) * length + 1.0);
+      // visit_row(rr, near_only, visit) calls visit(column, across_at, along_at, difference_at) for each
+      // pixel of the window's row rr (the three give the pixel's across = (column - the curve's column in
+      // row rr) / L, its along from the row's point, its signed difference; each computed only if asked).
+      // The row's own pixels are summed first (a cheap rejection: the row must hold light of the line,
+      // below), then the window's. The sums are of integers (exact in any order); the pixels within
+      // kGapAlongPx along are kept, in the visiting order, for the centre of mass (its floating-point sums
+      // as another visit of the window would give them). Bit-identical to visiting the whole window each
+      // time (laser_digest --check against a build before issue 15's speed-up).
+      const int step = on.channels();
+      // near_only: a row none of whose pixels lies within kGapAlongPx along is skipped (along is monotonic
+      // in the column, so its two ends tell).
+      auto visit_row = [&](int rr, bool near_only, auto&& visit) {
+        const double cc = curve.ColumnAt(rr);
+        int c_first = ClampToIndex(std::floor(cc - reach_px), cols);
+        int c_last = ClampToIndex(std::ceil(cc + reach_px), cols);
+        auto along_at = [&](int c) { return ((c - c0) * s + (rr - r)) / length; };
+        if (near_only) {
+          const double a0 = along_at(c_first), a1 = along_at(c_last);
+          if ((a0 > kGapAlongPx && a1 > kGapAlongPx) || (a0 < -kGapAlongPx && a1 < -kGapAlongPx)) return;
+          // On a sloped line only a band of the row's columns lies within kGapAlongPx along: those between
+          // the columns where along is -kGapAlongPx and kGapAlongPx, a pixel more either side (at a slope
+          // of at least kGapBandMinSlope a column moves along by ~0.05 px or more, far above rounding).
+          if (std::abs(s) >= kGapBandMinSlope) {
+            const double e0 = c0 + (-kGapAlongPx * length - (rr - r)) / s;
+            const double e1 = c0 + (kGapAlongPx * length - (rr - r)) / s;
+            if (std::isfinite(e0) && std::isfinite(e1)) {
+              c_first = std::max(c_first, ClampToIndex(std::floor(std::min(e0, e1)) - 1.0, cols));
+              c_last = std::min(c_last, ClampToIndex(std::ceil(std::max(e0, e1)) + 1.0, cols));
+            }
+          }
         }
+        const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
+        const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
+        auto across_at = [&](int c) { return (c - cc) / length; };
+        auto difference_at = [&](int c) { return SignedDifference(a[c * step], b[c * step]); };
+        for (int c = c_first; c <= c_last; ++c) visit(c, across_at, along_at, difference_at);
       };
-      // The matched filter: the box on the curve, and the boxes kGapSideShift half widths to either side;
-      // each split into the halves before and after the row's point along the line.
-      double sum[2][3] = {{0, 0, 0}, {0, 0, 0}};  // [half][centre, left, right]
-      int count[2][3] = {{0, 0, 0}, {0, 0, 0}};
-      double own[3] = {0, 0, 0};  // the row's own pixels of the three boxes
-      int own_count[3] = {0, 0, 0};
-      for_each_window_pixel([&](int rr, int c, double across, double along) {
-        const int box = std::abs(across) <= half                               ? 0
-                        : std::abs(across + kGapSideShift * half) <= half ? 1
-                        : std::abs(across - kGapSideShift * half) <= half ? 2
-                                                                           : -1;
-        if (box < 0) return;
-        const int d = SignedDifference(on, off, channel, rr, c);
-        if (rr == r) {  // the row's own pixels, at any distance along (a steep line's sides lie far along)
-          own[box] += d;
-          ++own_count[box];
-        }
-        if (std::abs(along) > kGapAlongPx) return;
-        const int h = along < 0 ? 0 : 1;
-        sum[h][box] += d;
-        ++count[h][box];
-      });
+      auto box_of = [&](double across) {
+        return std::abs(across) <= half                          ? 0
+               : std::abs(across + kGapSideShift * half) <= half ? 1
+               : std::abs(across - kGapSideShift * half) <= half ? 2
+                                                                 : -1;
+      };
       // Contrast of the centre box over the sides' mean, per pixel, and its noise; over the whole window
       // (at least min_z times its noise), over each half (at least kGapHalfZ: the line goes on through
       // the row, it does not end at it, as at a shadow's edge) and over the row's own pixels (kGapHalfZ
@@ -219,32 +242,73 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         const double contrast = s0 / n0 - 0.5 * (s1 / n1 + s2 / n2);
         return contrast / (noise_dn * std::sqrt(kGapCorrelation * (1.0 / n0 + 0.25 / n1 + 0.25 / n2)));
       };
+      // The row's own pixels of the three boxes, at any distance along (a steep line's sides lie far along).
+      double own[3] = {0, 0, 0};
+      int own_count[3] = {0, 0, 0};
+      visit_row(r, false, [&](int c, auto&& across_at, auto&&, auto&& difference_at) {
+        const int box = box_of(across_at(c));
+        if (box < 0) return;
+        own[box] += difference_at(c);
+        ++own_count[box];
+      });
+      if (z_of(own[0], own[1], own[2], own_count[0], own_count[1], own_count[2]) < kGapHalfZ) continue;
+      // The matched filter: the box on the curve, and the boxes kGapSideShift half widths to either side;
+      // each split into the halves before and after the row's point along the line.
+      double sum[2][3] = {{0, 0, 0}, {0, 0, 0}};  // [half][centre, left, right]
+      int count[2][3] = {{0, 0, 0}, {0, 0, 0}};
+      // Summed in runs of pixels of one box and half (a row crosses each box once), in integers.
+      int run_key = -1, run_sum = 0, run_count = 0;
+      auto flush = [&] {
+        if (run_key < 0) return;
+        sum[run_key / 3][run_key % 3] += run_sum;
+        count[run_key / 3][run_key % 3] += run_count;
+      };
+      near.clear();
+      for (int rr = r_first; rr <= r_last; ++rr) {
+        visit_row(rr, true, [&](int c, auto&& across_at, auto&& along_at, auto&& difference_at) {
+          const double along = along_at(c);
+          if (std::abs(along) > kGapAlongPx) return;
+          const double across = across_at(c);
+          const int d = difference_at(c);
+          near.push_back({across, d});
+          const int box = box_of(across);
+          if (box < 0) return;
+          const int key = (along < 0 ? 0 : 3) + box;
+          if (key != run_key) {
+            flush();
+            run_key = key;
+            run_sum = 0;
+            run_count = 0;
+          }
+          run_sum += d;
+          ++run_count;
+        });
+      }
+      flush();
       const double z = z_of(sum[0][0] + sum[1][0], sum[0][1] + sum[1][1], sum[0][2] + sum[1][2],
                             count[0][0] + count[1][0], count[0][1] + count[1][1], count[0][2] + count[1][2]);
       if (z < min_z) continue;
       if (z_of(sum[0][0], sum[0][1], sum[0][2], count[0][0], count[0][1], count[0][2]) < kGapHalfZ ||
-          z_of(sum[1][0], sum[1][1], sum[1][2], count[1][0], count[1][1], count[1][2]) < kGapHalfZ ||
-          z_of(own[0], own[1], own[2], own_count[0], own_count[1], own_count[2]) < kGapHalfZ)
+          z_of(sum[1][0], sum[1][1], sum[1][2], count[1][0], count[1][1], count[1][2]) < kGapHalfZ)
         continue;
       // The point's peak: the centre box's mean over the sides' (DN).
       const int n_centre = count[0][0] + count[1][0];
-      const double contrast = (sum[0][0] + sum[1][0]) / n_centre -
-                              0.5 * ((sum[0][1] + sum[1][1]) / (count[0][1] + count[1][1]) +
-                                     (sum[0][2] + sum[1][2]) / (count[0][2] + count[1][2]));
+      const double contrast =
+          (sum[0][0] + sum[1][0]) / n_centre - 0.5 * ((sum[0][1] + sum[1][1]) / (count[0][1] + count[1][1]) +
+                                                      (sum[0][2] + sum[1][2]) / (count[0][2] + count[1][2]));
       // The centre: the centre of mass across of the difference above one sigma, within the line's width.
-      const double window = std::max(kSteepMinHalfPx, width_across);
       double t = 0, spread2 = 0, sum_w = 0;
       bool ok = true;
       for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
         double sw = 0, swt = 0, swtt = 0;
-        for_each_window_pixel([&](int rr, int c, double across, double along) {
-          if (std::abs(along) > kGapAlongPx || std::abs(across - t) > window) return;
-          const double w = SignedDifference(on, off, channel, rr, c) - noise_dn;
-          if (w <= 0) return;
+        for (const NearPixel& q : near) {
+          if (std::abs(q.across - t) > window) continue;
+          const double w = q.difference - noise_dn;
+          if (w <= 0) continue;
           sw += w;
-          swt += w * across;
-          swtt += w * across * across;
-        });
+          swt += w * q.across;
+          swtt += w * q.across * q.across;
+        }
         if (sw <= 0) {
           ok = false;
           break;
