@@ -108,15 +108,6 @@ TEST(KernelsTest, Sse2MatchesPortableOnRandomRows) {
       const SidesSum sides_sse2 = sse2::SumsAround(off.data(), first, middle, last, cols);
       ASSERT_EQ(sides_portable.left, sides_sse2.left);
       ASSERT_EQ(sides_portable.right, sides_sse2.right);
-      // The steep step's window sums (steep.cc) over the laser rows themselves, at every level.
-      const int min_d = std::uniform_int_distribution<int>(1, 60)(rng);
-      const WindowSums window_portable =
-          scalar::SteepWindowSums(on.data(), off.data(), 1, first, last, cols, threshold, min_d);
-      const WindowSums window_sse2 = sse2::SteepWindowSums(on.data(), off.data(), 1, first, last, cols, threshold, min_d);
-      ASSERT_EQ(window_portable.count, window_sse2.count);
-      ASSERT_EQ(window_portable.sum_d, window_sse2.sum_d);
-      ASSERT_EQ(window_portable.sum_offset, window_sse2.sum_offset);
-      ASSERT_EQ(window_portable.sum_d_offset, window_sse2.sum_d_offset);
       // The notch filling writes the row: each path on its own copy; one run in four all zero (its peak
       // is 0 at its first pixel).
       PaddedRow fill_portable = d_sse2, fill_sse2 = d_sse2;

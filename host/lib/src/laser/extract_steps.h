@@ -169,13 +169,6 @@ struct ByteRange {
   int low = 255, high = 0;
 };
 
-// SteepWindowSums' result (kernels.h): over the pixels of a stretch of a row whose difference reaches a
-// level, their count, the sums of the difference d and of the offsets o from the stretch's first pixel,
-// and of d o (RecentreSteepLines, steep.cc).
-struct WindowSums {
-  int64_t count = 0, sum_d = 0, sum_offset = 0, sum_d_offset = 0;
-};
-
 struct Candidate {
   int peak_pos = 0;  // first pixel at the peak value
   int peak = 0;

@@ -38,7 +38,6 @@ using sse2::OutlierBits;
 using sse2::ScanNotch;
 using sse2::ScreenWindows;
 using sse2::SumRange;
-using sse2::SteepWindowSums;
 using sse2::SumsAround;
 #else
 using scalar::CenterOfMassOver;
@@ -51,7 +50,6 @@ using scalar::OutlierBits;
 using scalar::ScanNotch;
 using scalar::ScreenWindows;
 using scalar::SumRange;
-using scalar::SteepWindowSums;
 using scalar::SumsAround;
 #endif
 

@@ -122,26 +122,6 @@ inline int RowGroups(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, i
   return count;
 }
 
-// RecentreSteepLines' sums over the pixels c of [first, last] of a row (laser-on a, laser-off b, pixel c
-// at a[c * step]) whose difference d (step 1's: a pixel saturated in the laser-on row over a laser-off one
-// with headroom, b <= 255 - threshold, counts as 255) is at least min_d: their count, the sums of d, of
-// o = c - first and of d o.
-inline WindowSums SteepWindowSums(const uint8_t* a, const uint8_t* b, int step, int first, int last, int /*cols*/,
-                                  int threshold, int min_d) {
-  WindowSums sums;
-  for (int c = first; c <= last; ++c) {
-    const int av = a[c * step], bv = b[c * step];
-    const int d = av == 255 && bv <= 255 - threshold ? 255 : std::max(av - bv, 0);
-    const int in = d >= min_d;
-    const int o = c - first;
-    sums.count += in;
-    sums.sum_d += in * d;
-    sums.sum_offset += in * o;
-    sums.sum_d_offset += in * d * o;
-  }
-  return sums;
-}
-
 // The along-line smoothing's outlier screen (SmoothAlongLine, smooth.cc): for each point k in [k0, k1) of
 // a stretch, bit k - k0 of `bits` (zeroed by the caller) is set when some neighbour x in [-h, h], x != 0,
 // may lie further than `limit` from the point's first fit af[k] + x bf[k], i.e. |rel[k + x] - af[k] - x

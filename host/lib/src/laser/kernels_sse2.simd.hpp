@@ -268,45 +268,6 @@ inline SidesSum SumsAround(const uint8_t* b, int first, int middle, int last, in
   return sums;
 }
 
-// SteepWindowSums (kernels_scalar.simd.hpp), 16 pixels at a time on single-channel rows of `cols` >= 16
-// pixels (others: the portable loop); nothing outside the row is read.
-inline WindowSums SteepWindowSums(const uint8_t* a, const uint8_t* b, int step, int first, int last, int cols,
-                                  int threshold, int min_d) {
-  if (step != 1 || cols < 16) return scalar::SteepWindowSums(a, b, step, first, last, cols, threshold, min_d);
-  const __m128i all = _mm_set1_epi8(-1), zero = _mm_setzero_si128();
-  const __m128i headroom = _mm_set1_epi8(static_cast<char>(255 - threshold));
-  const __m128i level = _mm_set1_epi8(static_cast<char>(min_d));
-  const __m128i lane = _mm_setr_epi8(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-  const __m128i lane_lo = _mm_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7), lane_hi = _mm_setr_epi16(8, 9, 10, 11, 12, 13, 14, 15);
-  WindowSums sums;
-  ForRange(first, last, cols, [&](int p, __m128i mask) {
-    const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + p));
-    const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + p));
-    const __m128i saturated =
-        _mm_and_si128(_mm_cmpeq_epi8(va, all), _mm_cmpeq_epi8(_mm_max_epu8(vb, headroom), headroom));
-    const __m128i d = _mm_or_si128(_mm_subs_epu8(va, vb), saturated);
-    const __m128i in = _mm_and_si128(mask, _mm_cmpeq_epi8(_mm_max_epu8(d, level), d));
-    const __m128i dm = _mm_and_si128(in, d);
-    const __m128i sn = _mm_sad_epu8(_mm_and_si128(in, _mm_set1_epi8(1)), zero);  // no POPCNT in SSE2
-    const int64_t n = _mm_cvtsi128_si32(sn) + _mm_cvtsi128_si32(_mm_srli_si128(sn, 8));
-    const __m128i sd = _mm_sad_epu8(dm, zero);
-    const __m128i sl = _mm_sad_epu8(_mm_and_si128(in, lane), zero);
-    const __m128i dl = _mm_add_epi32(_mm_madd_epi16(_mm_unpacklo_epi8(dm, zero), lane_lo),
-                                     _mm_madd_epi16(_mm_unpackhi_epi8(dm, zero), lane_hi));
-    alignas(16) int32_t dl4[4];
-    _mm_store_si128(reinterpret_cast<__m128i*>(dl4), dl);
-    const int64_t sum_d = _mm_cvtsi128_si32(sd) + _mm_cvtsi128_si32(_mm_srli_si128(sd, 8));
-    const int64_t sum_lane = _mm_cvtsi128_si32(sl) + _mm_cvtsi128_si32(_mm_srli_si128(sl, 8));
-    const int64_t sum_d_lane = int64_t{dl4[0]} + dl4[1] + dl4[2] + dl4[3];
-    const int64_t base = p - first;  // o = base + lane
-    sums.count += n;
-    sums.sum_d += sum_d;
-    sums.sum_offset += base * n + sum_lane;
-    sums.sum_d_offset += base * sum_d + sum_d_lane;
-  });
-  return sums;
-}
-
 // Step 1 of the row pass (row_pass.cc) from pixel *next on, 16 pixels per instruction: whole 64-pixel
 // groups, then the rest in 16-pixel blocks, then one overlapping block whose already-seen bits are
 // cleared. Pushes (start, mask) pairs at starts/masks[count...] and returns the new count; *next = cols
