@@ -30,6 +30,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "rotoscan/core/file.h"
 #include "rotoscan/laser/extract.h"
 #include "rotoscan/sim/renderer.h"
 #include "rotoscan/sim/scene.h"
@@ -149,7 +150,9 @@ bool Rendered(Pairs* pairs) {
 }
 
 // One digest per set: every estimator, smoothing on and off; `wide` false: SSE2 alone.
-FILE* g_dump = nullptr;
+// --dump: the points as text, written whole at the end (core/file.h: nothing half-written on failure).
+std::string g_dump_path;
+std::string g_dump;
 
 uint64_t DigestOf(const std::string& set, const Pairs& pairs, bool wide, size_t* points, long* gap_filled) {
   rotoscan::laser::internal::AllowVectorExtensions(wide, wide);
@@ -172,11 +175,13 @@ uint64_t DigestOf(const std::string& set, const Pairs& pairs, bool wide, size_t*
         AddLine(line, &d);
         *points += line.points.size();
         *gap_filled += line.stats.gap_filled;
-        if (g_dump != nullptr && wide) {
+        if (!g_dump_path.empty() && wide) {
           for (const rotoscan::laser::LinePoint& p : line.points) {
-            std::fprintf(g_dump, "%s %s %d %d %d %.9g %.9g %.9g %.9g %.9g %d\n", set.c_str(),
-                         rotoscan::laser::EstimatorName(estimator), smooth, frame, p.row, p.column, p.peak, p.width,
-                         p.quality, p.uncertainty_px, p.flags);
+            char text[256];
+            std::snprintf(text, sizeof text, "%s %s %d %d %d %.9g %.9g %.9g %.9g %.9g %d\n", set.c_str(),
+                          rotoscan::laser::EstimatorName(estimator), smooth, frame, p.row, p.column, p.peak, p.width,
+                          p.quality, p.uncertainty_px, p.flags);
+            g_dump += text;
           }
         }
         ++frame;
@@ -196,11 +201,7 @@ int main(int argc, char** argv) {
     if (arg == "--check" && i + 1 < argc) {
       check = argv[++i];
     } else if (arg == "--dump" && i + 1 < argc) {
-      g_dump = std::fopen(argv[++i], "w");
-      if (g_dump == nullptr) {
-        std::fprintf(stderr, "laser_digest: cannot write %s\n", argv[i]);
-        return 2;
-      }
+      g_dump_path = argv[++i];
     } else if (arg == "--sets" && i + 1 < argc) {
       sets = argv[++i];
     } else {
@@ -262,9 +263,12 @@ int main(int argc, char** argv) {
       }
     }
   }
-  if (g_dump != nullptr && std::fclose(g_dump) != 0) {
-    std::fprintf(stderr, "laser_digest: writing the dump failed\n");
-    return 2;
+  if (!g_dump_path.empty()) {
+    const rotoscan::Status written = rotoscan::WriteFileAtomically(g_dump_path, g_dump);
+    if (!written.ok()) {
+      std::fprintf(stderr, "laser_digest: %s\n", written.ToString().c_str());
+      return 2;
+    }
   }
   return failures == 0 ? 0 : 1;
 }

@@ -12,6 +12,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "rotoscan/core/file.h"
 #include "rotoscan/sim/scene.h"
 
 namespace rotoscan::testing::povray {
@@ -224,11 +225,7 @@ Result<cv::Mat> Render(const PovScene& scene, Frame frame, const fs::path& work_
   fs::create_directories(work_dir, ec);
   const fs::path pov = work_dir / (name + ".pov"), png = work_dir / (name + ".png"),
                  log = work_dir / (name + ".log");
-  {
-    std::ofstream file(pov);
-    file << SceneText(scene, frame);
-    if (!file) return IoError("cannot write " + pov.string());
-  }
+  ROTOSCAN_RETURN_IF_ERROR(WriteFileAtomically(pov, SceneText(scene, frame)));
   std::ostringstream cmd;
   // Run in the work directory with relative names: POV-Ray's I/O security (restricted by default, Debian's
   // /etc/povray/3.7/povray.conf) always lets it read and write the current directory.

@@ -74,7 +74,7 @@ bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int thresh
         const double across = (dc - s * dr) / length;
         if (std::abs(along) > kSteepAlongPx || std::abs(across - t) > half) continue;
         const int av = pa[c * step], bv = pb[c * step];
-        const int d = av == 255 && bv <= 255 - threshold ? 255 : std::max(av - bv, 0);
+        const int d = LaserDifference(av, bv, threshold);
         const double w = d - level;
         if (w <= 0) continue;
         sum_w += w;

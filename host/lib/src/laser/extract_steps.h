@@ -26,6 +26,13 @@
 
 namespace rotoscan::laser::detail {
 
+// The row pass's difference of a laser-on pixel a over its laser-off pixel b (step 1, row_pass.cc): a
+// pixel saturated in the laser-on frame over one with headroom (b <= 255 - threshold) counts as 255,
+// whatever the difference says (no notch splits a line); otherwise a - b, at least 0.
+inline int LaserDifference(int a, int b, int threshold) {
+  return a == 255 && b <= 255 - threshold ? 255 : (a > b ? a - b : 0);
+}
+
 // The centre of mass weighs d - 0.15 * peak over the run above that level. Measured on the
 // synthetic cases of EstimatorComparison with levels 0.5, 0.35, 0.25, 0.2, 0.15 and 0.1: below 0.25 the
 // wide weak line gains (more pixels average the noise, 0.092 -> 0.073 px) and nothing loses; 0.15 keeps a

@@ -111,7 +111,7 @@ inline int RowGroups(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, i
     uint64_t mask = 0;
     for (int k = 0; k < 16 && i0 + k < cols; ++k) {
       const uint8_t x = a[i0 + k], y = b[i0 + k];
-      d[i0 + k] = static_cast<uint8_t>(x == 255 && y <= 255 - threshold ? 255 : x > y ? x - y : 0);
+      d[i0 + k] = static_cast<uint8_t>(LaserDifference(x, y, threshold));
       mask |= static_cast<uint64_t>(d[i0 + k] >= threshold) << k;
     }
     starts[count] = i0;

@@ -137,8 +137,7 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
     const double last_bin = static_cast<double>(bins - 1);
     for (int r = r_first; r <= r_last; ++r) {
       const int av = on.ptr<uint8_t>(r)[c * step + channel], bv = off.ptr<uint8_t>(r)[c * step + channel];
-      // The difference, a pixel saturated in the laser-on frame counting as 255 (as the rows' pass).
-      const int d = av == 255 && bv <= 255 - threshold ? 255 : std::max(av - bv, 0);
+      const int d = LaserDifference(av, bv, threshold);
       if (d < min_d) continue;
       const double u = (u0 + r * per_row) * kSteepBinsPerPx;
       const size_t b = static_cast<size_t>(std::clamp(u, 0.0, last_bin));
