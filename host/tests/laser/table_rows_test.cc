@@ -439,7 +439,13 @@ TEST(TableRowsTest, MissedRowsBySignal) {
                 std::sqrt(set.side_sum2 / std::max(1L, set.side_n)), Median(set.missed_noisy_over_clean));
     Print("object", set.object);
     Print("table", set.table);
-    EXPECT_GT(set.table.lit, 0);
+    ASSERT_GT(set.table.lit, 0);
+    // The findings the README states (8 steps, f/4 and f/2.4): no table row the row pass misses is under
+    // 2 sigma in the noise-free render (glossy 0 of 322, textured 0 of 739), and with the gap step at
+    // least 90 % of the table's lit rows are found (94.9 / 95.3 % at f/4, 97.2 / 92.1 % at f/2.4; 88.0 /
+    // 66.7 % without it).
+    EXPECT_EQ(set.table.plain_missed_by_signal[0], 0);
+    EXPECT_GE(set.table.found, 0.90 * set.table.lit);
   }
 }
 
