@@ -149,6 +149,16 @@ constexpr int kSteepIterations = 2;
 // their rows: rows whose centres merely lie near each other are no line (RealFramesTest's independent rows
 // jump by up to 40 px and gave 181 rows over 1 px without this test).
 constexpr double kSteepMaxResidual = 0.35;
+// ... or within kSteepLooseResidual (1 + L) px where the fitted slope is at least kSteepMinSlopeT standard
+// errors (eleventh session, rftabrows; TableRowsTest at 8 steps, f/4, rows over 1 px across, glossy object /
+// table, textured object / table: 83 / 61 / 110 / 58 before; 0.8 alone: 76 / 46 / 113 / 46, but
+// RealFramesTest's independent rows 0 -> 11 over 1 px; with the slope's test, 5 sigma: 77 / 46 / 113 / 48,
+// RealFramesTest 0; 10 sigma: 78 / 47 / 113 / 49; loose 1.0 fails RealFramesTest). A point moves by at most
+// its uncertainty or kSteepMaxMoveWidths of its row width (0.3 with the above: 75 / 46 / 112 / 49; 0.6 the
+// same, within a row).
+constexpr double kSteepLooseResidual = 0.8;
+constexpr double kSteepMinSlopeT = 5.0;
+constexpr double kSteepMaxMoveWidths = 0.3;
 constexpr int kSteepMinPoints = 7;
 // Zero bytes before and after the row's difference buffer (LineExtractor::diff_).
 constexpr int kPad = 16;

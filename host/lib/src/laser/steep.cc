@@ -188,8 +188,11 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
     // times the offset across the line).
     const double c0 = f.c0 - c_first, r0 = f.row - base_row;
     const double offset = (wc - c0 * w - f.s * (wr - r0 * w) - f.k * (wrr - 2 * r0 * wr + r0 * r0 * w)) / w;
-    // As the smoothing (LimitSmoothing), the point moves by at most its own uncertainty along the row.
-    const double limit = p[f.index].uncertainty_px;
+    // As the smoothing (LimitSmoothing), the point moves by at most its own uncertainty along the row, or
+    // kSteepMaxMoveWidths of its row width where that is larger (a weak speckled row's uncertainty can be
+    // under its error: ends.cc's limit, tighter).
+    const double limit =
+        std::max(static_cast<double>(p[f.index].uncertainty_px), kSteepMaxMoveWidths * p[f.index].width);
     (*moved)[f.index] = static_cast<float>(f.c0 + std::clamp(offset, -limit, limit));
     ++moved_count;
   }
@@ -267,15 +270,22 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     const double length = std::sqrt(1.0 + s * s);
     // A line, not rows that merely lie near each other: the points' RMS distance along their rows from
     // the fit (per degree of freedom) is at most kSteepMaxResidual (1 + L) px (a row's error is L times one
-    // across the line).
+    // across the line); or at most kSteepLooseResidual (1 + L) px where the fit's slope is at least
+    // kSteepMinSlopeT of its own standard errors (a weak speckled line, whose rows scatter more than 0.35
+    // (1 + L): on the webcam sets most of the table's steep mid-line rows over 1 px had been left to their
+    // row's own estimate by the tight test alone; independent rows give no significant slope).
     double residual2 = 0;
     for (size_t k = lo; k <= hi; ++k) {
       const double dr = p[k].row - r0;
       const double e = p[k].column - (c0 + x[0] + s * dr + curvature * dr * dr);
       residual2 += e * e;
     }
-    if (residual2 > kSteepMaxResidual * kSteepMaxResidual * (1.0 + length) * (1.0 + length) *
-                        static_cast<double>(hi - lo + 1 - 3))
+    const double dof = static_cast<double>(hi - lo + 1 - 3);
+    const double scale2 = (1.0 + length) * (1.0 + length) * dof;
+    const double slope_variance = residual2 / dof * q11 * inv_det;  // the fit's variance of s
+    if (residual2 > kSteepMaxResidual * kSteepMaxResidual * scale2 &&
+        (residual2 > kSteepLooseResidual * kSteepLooseResidual * scale2 ||
+         s * s < kSteepMinSlopeT * kSteepMinSlopeT * slope_variance))
       continue;
     // Across the line, the row's width divided by L; the window is that width either side.
     const double half = std::max(kSteepMinHalfPx, p[i].width / length);
