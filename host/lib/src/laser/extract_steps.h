@@ -311,9 +311,12 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
 // the end rows put on the interior's straight line (no centre measured): 109 / 52 / 108 / 49 (the object's
 // lines bend near a silhouette); that only where a parabola's curvature is under 3 standard errors:
 // 87 / 54 / 108 / 55; the final (16 points in, twice the width, residual 0.8, no end followed by the line
-// after a gap): 84 / 60 / 108 / 58.
+// after a gap): 84 / 60 / 108 / 58. Eleventh session (rftabrows), after the steep step's loose line test
+// (75 / 46 / 112 / 49 with 12 points): the interior over 24 points, 75 / 45 / 112 / 45 (16 or 32 points: 75 /
+// 45 / 112 / 47; from 10 or 12 points in: 75-79 / 45-46 / 112 / 45-47); at 12 steps, a set it was not chosen
+// on, 146 / 75 / 183 / 73 -> 146 / 70 / 183 / 70; LineEndTest's last rows over 1 px 11 -> 5 of 60.
 constexpr int kEndMaxRows = 16;
-constexpr int kEndFitRows = 12;
+constexpr int kEndFitRows = 24;
 constexpr double kEndMaxMoveWidths = 0.5;
 constexpr double kEndMaxResidual = 0.8;
 constexpr int kEndResumeRows = 16;
