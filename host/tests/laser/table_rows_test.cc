@@ -392,33 +392,36 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
               const double clean_centre_across = pipeline::DistanceAcrossLine(clean_centre, row, all_by_row);
               part.steep_clean_centre_over += clean_centre_across > 1.0;
               const auto cp = clean_point_of_row.find(row);
-              const double clean_point_across = cp == clean_point_of_row.end()
-                                                    ? 1e9
-                                                    : pipeline::DistanceAcrossLine(cp->second, row, all_by_row);
+              const double clean_point_across =
+                  cp == clean_point_of_row.end() ? 1e9
+                                                 : pipeline::DistanceAcrossLine(cp->second, row, all_by_row);
               part.steep_clean_point_over += clean_point_across > 1.0;
               const auto r = raw_of_row.find(row);
               const double raw_across =
-                  r == raw_of_row.end() ? 1e9 : pipeline::DistanceAcrossLine(r->second->column, row, all_by_row);
+                  r == raw_of_row.end() ? 1e9
+                                        : pipeline::DistanceAcrossLine(r->second->column, row, all_by_row);
               part.steep_raw_within += raw_across <= 1.0;
               const auto ns = no_steep_of_row.find(row);
-              const double no_steep_across =
-                  ns == no_steep_of_row.end() ? 1e9 : pipeline::DistanceAcrossLine(ns->second, row, all_by_row);
+              const double no_steep_across = ns == no_steep_of_row.end()
+                                                 ? 1e9
+                                                 : pipeline::DistanceAcrossLine(ns->second, row, all_by_row);
               part.steep_off_within += no_steep_across <= 1.0;
               const LinePoint* q = line_of_row[row];
               part.steep_unc_under += q->uncertainty_px < std::abs(q->column - columns[0]);
               if (DumpSteep()) {
-                std::printf("    steep %s row %d: truth %.2f (rows -2..2:", is_object ? "object" : "table", row,
-                            columns[0]);
+                std::printf("    steep %s row %d: truth %.2f (rows -2..2:", is_object ? "object" : "table",
+                            row, columns[0]);
                 for (int dr = -2; dr <= 2; ++dr) {
                   const auto n = all_by_row.find(row + dr);
                   std::printf(" %.1f", n == all_by_row.end() ? -1.0 : n->second[0]);
                 }
-                std::printf("), point %.2f (across %.2f, unc %.2f, peak %d, width %.1f), own estimate %.2f, "
-                            "no steep step %.2f, noise-free point %.2f, noise-free centre %.2f\n",
-                            q->column, across, q->uncertainty_px, static_cast<int>(q->peak), q->width,
-                            r == raw_of_row.end() ? -1.0 : r->second->column,
-                            ns == no_steep_of_row.end() ? -1.0 : ns->second,
-                            cp == clean_point_of_row.end() ? -1.0 : cp->second, clean_centre);
+                std::printf(
+                    "), point %.2f (across %.2f, unc %.2f, peak %d, width %.1f), own estimate %.2f, "
+                    "no steep step %.2f, noise-free point %.2f, noise-free centre %.2f\n",
+                    q->column, across, q->uncertainty_px, static_cast<int>(q->peak), q->width,
+                    r == raw_of_row.end() ? -1.0 : r->second->column,
+                    ns == no_steep_of_row.end() ? -1.0 : ns->second,
+                    cp == clean_point_of_row.end() ? -1.0 : cp->second, clean_centre);
                 for (int dr = -2; dr <= 2; ++dr)
                   if (row + dr >= 0 && row + dr < clean_on.rows) {
                     PrintProfile(dr == 0 ? "noisy" : "     ", noisy_on, noisy_off, row + dr, columns[0]);
@@ -481,11 +484,12 @@ void Print(const char* name, const PartRows& p) {
               "own estimate within 1 px %d; the noise-free render's centre over 1 px from the truth %d; median "
               "|error| along the row: point %.2f px, noise-free centre %.2f px\n",
               p.end_last, p.end_second, p.end_further, p.end_raw_within, p.end_clean_over, Median(pe), Median(ce));
-  std::printf("         steep mid-line rows over 1 px (2 px per row or more) %d: the noise-free render's centre in "
-              "the row over 1 px %d, its extracted point over 1 px %d; the row's own estimate within 1 px %d; "
-              "within 1 px without the steep step %d; uncertainty under the error along the row %d\n",
-              p.steep_rows, p.steep_clean_centre_over, p.steep_clean_point_over, p.steep_raw_within,
-              p.steep_off_within, p.steep_unc_under);
+  std::printf(
+      "         steep mid-line rows over 1 px (2 px per row or more) %d: the noise-free render's centre in "
+      "the row over 1 px %d, its extracted point over 1 px %d; the row's own estimate within 1 px %d; "
+      "within 1 px without the steep step %d; uncertainty under the error along the row %d\n",
+      p.steep_rows, p.steep_clean_centre_over, p.steep_clean_point_over, p.steep_raw_within,
+      p.steep_off_within, p.steep_unc_under);
   std::printf("         noise-free render, rows within 4 of a line's end, without / with the line-end step: %d / %d "
               "found, %d / %d over 1 px across, RMS %.2f / %.2f px\n",
               p.clean_end_rows[0], p.clean_end_rows[1], p.clean_end_over[0], p.clean_end_over[1],
@@ -699,9 +703,10 @@ TEST(SteepLineTest, WeakSpeckledSteepLineMidRowsMeasuredAcross) {
       }
     }
   }
-  std::printf("weak speckled steep line, %d mid-line rows: without / with the steep step %d / %d over 1 px "
-              "across, RMS %.3f / %.3f px\n",
-              rows, over[0], over[1], std::sqrt(sum2[0] / std::max(1, rows)), std::sqrt(sum2[1] / std::max(1, rows)));
+  std::printf(
+      "weak speckled steep line, %d mid-line rows: without / with the steep step %d / %d over 1 px "
+      "across, RMS %.3f / %.3f px\n",
+      rows, over[0], over[1], std::sqrt(sum2[0] / std::max(1, rows)), std::sqrt(sum2[1] / std::max(1, rows)));
   ASSERT_GT(rows, 1000);
   EXPECT_GE(over[0], rows / 50);  // the rows' own estimates err here (else the test tests nothing)
   EXPECT_LE(over[1], over[0] / 2);
