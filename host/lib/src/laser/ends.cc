@@ -11,7 +11,8 @@
 // 1 px off too, and the noise-free render's own centre of mass in the row was 1.5-2.2 px off along the row
 // (median; over 1 px across in 42 of them): the light is there, the profile is cut. steep.cc measures a
 // steep point across its line, but with the direction from the neighbouring rows' points, which near an
-// end are the cut rows themselves (pulled the same way), and moves a point by at most its uncertainty.
+// end are the cut rows themselves (pulled the same way), and moves a point by at most its uncertainty (or
+// kSteepMaxMoveWidths of its row width).
 //
 // The step: at each open end of a stretch (steep.cc's: rows at most 2 apart, at most kSteepMaxStepPx columns
 // per row; not at the frame's first or last rows, and not where the line goes on after a gap of at most
