@@ -149,11 +149,14 @@ struct Curve {
 // typical frame; the line refined afterwards by the highest contrast over offsets and slopes within a step,
 // or by a straight-line fit of the centre of mass across: RMS 0.71 -> 1.54 and 0.98 px across (the
 // texture under the faint line pulls it).
-// A filled row's error (FaintStretchFoundPastItsEnd, 3 steps, f/4 and f/2.4): 0.49 px RMS across as placed
-// here; the steep step and the smoothing, which run after, move each within its uncertainty, to 0.70 px.
-// kEndAcrossSd, the standard error across the uncertainty takes (uncertainty 2 L kEndAcrossSd along the
-// row): 0.5: 80 of 102 within their uncertainty after those steps; 0.65: 92 of 101; 0.8: 95 of 98 (chosen;
-// 9 of 107 rows then end more than 3 px across, 5 at 0.5).
+// A filled row's error (FaintStretchFoundPastItsEnd, f/4 and f/2.4): as placed here, 0.49 px RMS across
+// at 3 steps, 1.06 at 8 (each capped at 3 px); the steep step and the smoothing, which run after, move each
+// within its uncertainty: 0.72 / 0.86 px, 18 of 98 / 63 of 313 over 1 px, and 9 / 12 rows end more than
+// 3 px across. kEndAcrossSd, the standard error across the uncertainty takes (2 L kEndAcrossSd along the
+// row), by the rows within their uncertainty after those steps (3 steps): 0.5: 80 of 102; 0.65: 92 of 101;
+// 0.8: 95 of 98 (8 steps: 278 of 314); 1.0 (chosen): 98 of 98 (8 steps: 290 of 313).
+// Their quality (kGapQuality / (1 + u^2), u ~ 2 L ~ 18 px) is the lowest of any point's: a filter on
+// quality drops them first.
 constexpr int kEndMaxRows = 16;
 constexpr int kEndMinRows = 4;
 constexpr int kEndStretchRows = 16;
@@ -163,7 +166,7 @@ constexpr double kEndMinSlope = 2.0;
 constexpr double kEndMaxSlope = 12.0;
 constexpr double kEndAngleStep = 0.5;
 constexpr int kEndAnchors = 3;
-constexpr double kEndAcrossSd = 0.8;
+constexpr double kEndAcrossSd = 1.0;
 
 // The signed difference's prefix sums over a block of rows, each row over its own columns (integers).
 struct RowPrefix {
