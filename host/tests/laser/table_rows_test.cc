@@ -520,7 +520,6 @@ TEST(TableRowsTest, MissedRowsBySignal) {
     EXPECT_GE(set.table.found, 0.90 * set.table.lit);
   }
 }
-
 }  // namespace
 }  // namespace rotoscan::laser
 
@@ -583,6 +582,8 @@ double AcrossError(const LinePoint& p) {
 // true line across it (measured: 185 of the 646 rows missed, RMS 0.40 px across, 2 over 1 px, i.e. 0.11 %
 // of the lit rows: issue 15's target is 0.2 %); none filled in the shadow (3 were, before the step asked
 // for the line on both sides of the row along it).
+// With the end step (ExtendLineEnds, eleventh session): 201 filled, RMS 0.38 px, 0 over 1 px, none in the
+// shadow.
 TEST(GapFillTest, WeakSteepLineGapsFoundNearTheTruthAndNoneInAShadow) {
   const std::pair<int, int> shadow = {100, 113};
   int lit = 0, found_without = 0, found_with = 0, filled = 0, filled_over = 0, in_shadow = 0;
@@ -823,6 +824,52 @@ TEST(GapFillTest, NoRowsFilledOnLaserOffPairs) {
   EXPECT_EQ(detail::kGapMinZ, 6.0);
   EXPECT_LE(false_rows[3], offered / 2000);
   EXPECT_LE(rendered_false[3], rendered_offered / 2000);
+}
+
+
+// The end step of FillLineGaps (gaps.cc, a stretch's faint continuation past its end): the points of real
+// stretches (without the gap step) given with a pair of laser-off frames of the same step: every row
+// filled is false. The three webcam scenes, 8 steps x 2 lasers; the end step's threshold swept (kEndMinZ
+// is 8 at the default min_z; min_z scales it).
+TEST(GapFillTest, NoEndRunsOnLaserOffPairs) {
+  const double end_zs[5] = {4, 5, 6, 7, 8};
+  int ends = 0, false_rows[5] = {0, 0, 0, 0, 0}, real_rows = 0;
+  for (const char* file : {"glossy-webcam.json", "textured-webcam.json", "concave-webcam.json"}) {
+    auto scene = sim::LoadScene(rotoscan::testing::DataPath(std::string("scenes/") + file));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    auto renderer = sim::Renderer::Create(*scene);
+    ASSERT_TRUE(renderer.ok());
+    for (int step = 0; step < 8; ++step) {
+      const double angle = step * 2.0 * 3.14159265358979323846 / 8;
+      const sim::RenderedStep frames =
+          (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), {true, true, true, false});
+      const cv::Mat other =
+          (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 7), {false, false, true, false}).frames[2];
+      ExtractOptions without;
+      without.fill_gaps = false;
+      auto noise = ExtractLine(other, frames.frames[2], without);
+      ASSERT_TRUE(noise.ok());
+      for (int k = 0; k < 2; ++k) {
+        auto line = ExtractLine(frames.frames[k], frames.frames[2], without);
+        ASSERT_TRUE(line.ok());
+        ends += detail::CountLineEnds(line->points, frames.frames[k].rows);
+        for (int z = 0; z < 5; ++z) {
+          std::vector<LinePoint> copy = line->points;
+          false_rows[z] += detail::ExtendLineEnds(other, frames.frames[2], 2, noise->stats.noise_dn, &copy,
+                                                  end_zs[z]);
+        }
+        std::vector<LinePoint> copy = line->points;
+        real_rows += detail::ExtendLineEnds(frames.frames[k], frames.frames[2], 2, line->stats.noise_dn, &copy);
+      }
+    }
+  }
+  std::printf("stretch ends offered on laser-off pairs: %d (up to %d rows each); rows filled at the end step's z "
+              "4 / 5 / 6 / 7 / 8: %d / %d / %d / %d / %d; on the laser pairs at 8: %d\n",
+              ends, 16, false_rows[0], false_rows[1], false_rows[2], false_rows[3], false_rows[4], real_rows);
+  EXPECT_GT(ends, 80);
+  EXPECT_EQ(detail::kEndMinZ, 8.0);
+  EXPECT_EQ(false_rows[4], 0);
+  EXPECT_GT(real_rows, 0);
 }
 
 }  // namespace

@@ -53,6 +53,9 @@
 //
 // Runs only on frames whose noise was measured on lit pixels (extract.cc), as steep.cc: on the
 // machine-vision preset's clean frames the row pass finds what there is.
+//
+// Then the stretches' ends are looked past (ExtendLineEnds, below: a faint straight continuation summed over
+// its run of rows).
 #include <algorithm>
 #include <cmath>
 #include <iterator>
@@ -113,7 +116,330 @@ struct Curve {
   }
 };
 
+// ExtendLineEnds (extract_steps.h; FillLineGaps runs it after the gaps): a stretch's faint continuation
+// past its end, along a straight line from the end.
+//
+// Why (issue 15, ObjectRowsTest.TexturedFaintRowsSignal and FaintStretchFoundPastItsEnd): the textured
+// object's rows that no step found (224 at 8 steps, f/4) are a nearly horizontal stretch (~9 px per row, the
+// laser across the object's flat top at a grazing angle), ~4 DN in the noise-free render against a
+// threshold of 11.4 DN, summed over the row's segment ~4 noise units. They lie past the end of the object's
+// found line (163 of 170 missed rows at 3 steps, both f-numbers: points within 16 rows on one side only),
+// not in a gap between two points, so FillLineGaps never looked at them; and a row there holds ~9 px of
+// line, so its +-kGapAlongPx window would not have reached 6 sigma either: the signal is there only summed
+// over the run of rows. The line turns sharply at the end (a vertical line on the side, a horizontal one on
+// the top), so the stretch's own curve does not predict it; the top is flat, so it is straight.
+//
+// The step, at each end of a stretch (kEndMinPoints joined points within kEndStretchRows rows in from it,
+// kEndMinRows free rows past it at least): the anchor is the outermost point with kEndAnchorPeak of the
+// stretch's median peak (the weak points past the corner lie on the stretch's glow, not on the turn), with
+// its neighbours in the stretch (kEndAnchors). Through each anchor, lines at every slope from kEndMinSlope
+// to kEndMaxSlope columns per row either way (the angle stepped so that the line moves kEndAngleStep of the
+// half width across at the run's far end): gaps.cc's matched filter (the box of the half width across on
+// the line, against the boxes kGapSideShift half widths to either side, kGapCorrelation) summed over the
+// rows from the anchor out, pixels within 2 half widths + 1 px along of the anchor left out (the
+// stretch's own light), each box a column interval per row from integer prefix sums. The best line over
+// anchors, slopes and lengths (kEndMinRows to kEndMaxRows rows past the end) is kept where its z reaches
+// min_z (kEndMinZ, 8: more lines are tried than the gap step tries) and each half of its rows past the end
+// reaches kGapHalfZ. Its rows past the end get the line's column.
+//
+// False rows (GapFillTest.NoEndRunsOnLaserOffPairs: the ends of real stretches given with laser-off pairs
+// of the three webcam scenes, 8 steps x 2 lasers, 109 ends): filled at z 4 / 5 / 6 / 7 / 8: 16 / 0 / 0 /
+// 0 / 0 rows.
+// Tried: one anchor instead of three: 91 of the 224 rows left (8 steps) against 62, ~30 against ~50 us a
+// typical frame; the line refined afterwards by the highest contrast over offsets and slopes within a step,
+// or by a straight-line fit of the centre of mass across: RMS 0.71 -> 1.54 and 0.98 px across (the
+// texture under the faint line pulls it).
+// A filled row's error (FaintStretchFoundPastItsEnd, f/4 and f/2.4): as placed here, 0.49 px RMS across
+// at 3 steps, 1.06 at 8 (each capped at 3 px); the steep step and the smoothing, which run after, move each
+// within its uncertainty: 0.72 / 0.86 px, 18 of 98 / 63 of 313 over 1 px, and 9 / 12 rows end more than
+// 3 px across. kEndAcrossSd, the standard error across the uncertainty takes (2 L kEndAcrossSd along the
+// row), by the rows within their uncertainty after those steps (3 steps): 0.5: 80 of 102; 0.65: 92 of 101;
+// 0.8: 95 of 98 (8 steps: 278 of 314); 1.0 (chosen): 98 of 98 (8 steps: 290 of 313).
+// Their quality (kGapQuality / (1 + u^2), u ~ 2 L ~ 18 px) is the lowest of any point's: a filter on
+// quality drops them first.
+constexpr int kEndMaxRows = 16;
+constexpr int kEndMinRows = 4;
+constexpr int kEndStretchRows = 16;
+constexpr int kEndMinPoints = 6;
+constexpr double kEndAnchorPeak = 0.5;
+constexpr double kEndMinSlope = 2.0;
+constexpr double kEndMaxSlope = 12.0;
+constexpr double kEndAngleStep = 0.5;
+constexpr int kEndAnchors = 3;
+constexpr double kEndAcrossSd = 1.0;
+
+// The signed difference's prefix sums over a block of rows, each row over its own columns (integers).
+struct RowPrefix {
+  int first_row = 0;
+  std::vector<int> first_col, cols;
+  std::vector<size_t> offset;
+  std::vector<long> sums;  // per row: cols + 1
+  // The sum over columns [c0, c1] of row rr (clipped to the row's columns), and the pixel count.
+  long Sum(int rr, int c0, int c1, int* count) const {
+    const size_t i = static_cast<size_t>(rr - first_row);
+    c0 = std::max(c0, first_col[i]);
+    c1 = std::min(c1, first_col[i] + cols[i] - 1);
+    if (c1 < c0) {
+      *count = 0;
+      return 0;
+    }
+    const long* row = sums.data() + offset[i];
+    *count = c1 - c0 + 1;
+    return row[c1 - first_col[i] + 1] - row[c0 - first_col[i]];
+  }
+};
+
+// A stretch's end: the point e with no point joined to it on the side dir (-1: the rows above, +1: below),
+// at least kEndMinPoints joined points within kEndStretchRows rows in from it, and at least kEndMinRows
+// free rows past it (before the next point or the image's edge).
+struct End {
+  int last = 0;    // the innermost point looked at
+  int anchor = 0;  // the outermost point with kEndAnchorPeak of the stretch's median peak
+  int end_row = 0, limit_row = 0;
+  double half = 0;  // the line's half width across (the matched filter's)
+};
+
+bool Joined(const std::vector<LinePoint>& p, int a, int b) {
+  const int gap = p[static_cast<size_t>(b)].row - p[static_cast<size_t>(a)].row;
+  return gap >= 1 && gap <= kGapMaxRows &&
+         std::abs(p[static_cast<size_t>(b)].column - p[static_cast<size_t>(a)].column) <= kSteepMaxStepPx * gap;
+}
+
+bool EndAt(const std::vector<LinePoint>& p, int e, int dir, int rows, std::vector<float>* peaks,
+           std::vector<float>* widths, End* out) {
+  const int n = static_cast<int>(p.size());
+  if (dir < 0 ? (e > 0 && Joined(p, e - 1, e)) : (e + 1 < n && Joined(p, e, e + 1))) return false;
+  peaks->clear();
+  widths->clear();
+  int last = e;
+  for (int k = e;;) {
+    peaks->push_back(p[static_cast<size_t>(k)].peak);
+    widths->push_back(p[static_cast<size_t>(k)].width);
+    last = k;
+    const int next = k - dir;
+    if (next < 0 || next >= n ||
+        std::abs(p[static_cast<size_t>(next)].row - p[static_cast<size_t>(e)].row) > kEndStretchRows)
+      break;
+    if (dir < 0 ? !Joined(p, k, next) : !Joined(p, next, k)) break;
+    k = next;
+  }
+  if (static_cast<int>(peaks->size()) < kEndMinPoints) return false;
+  // The rows past the end that may be filled: up to the next point or kEndMaxRows.
+  const int end_row = p[static_cast<size_t>(e)].row;
+  int limit_row = end_row + dir * kEndMaxRows;
+  if (dir < 0 && e > 0) limit_row = std::max(limit_row, p[static_cast<size_t>(e - 1)].row + 1);
+  if (dir > 0 && e + 1 < n) limit_row = std::min(limit_row, p[static_cast<size_t>(e + 1)].row - 1);
+  limit_row = std::clamp(limit_row, 0, rows - 1);
+  if (dir * (limit_row - end_row) < kEndMinRows) return false;
+  std::vector<float>& sorted = *peaks;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
+  const double median_peak = sorted[sorted.size() / 2];
+  int anchor = e;
+  while (anchor != last && p[static_cast<size_t>(anchor)].peak < kEndAnchorPeak * median_peak) anchor -= dir;
+  // The line's half width across: the stretch's median width along its rows (wider than across on a
+  // steep stretch: at least the line's).
+  std::nth_element(widths->begin(), widths->begin() + static_cast<long>(widths->size() / 2), widths->end());
+  out->last = last;
+  out->anchor = anchor;
+  out->end_row = end_row;
+  out->limit_row = limit_row;
+  out->half = std::max(1.5, 0.5 * (*widths)[widths->size() / 2]);
+  return true;
+}
+
 }  // namespace
+
+int CountLineEnds(const std::vector<LinePoint>& points, int rows) {
+  std::vector<float> peaks, widths;
+  End end;
+  int count = 0;
+  for (int e = 0; e < static_cast<int>(points.size()); ++e)
+    for (int dir : {-1, 1}) count += EndAt(points, e, dir, rows, &peaks, &widths, &end);
+  return count;
+}
+
+int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
+                   std::vector<LinePoint>* line_points, double min_z) {
+  std::vector<LinePoint>& p = *line_points;
+  const int n = static_cast<int>(p.size());
+  if (n < kEndMinPoints || noise_dn <= 0) return 0;
+  const int rows = on.rows, cols = on.cols, step = on.channels();
+  std::vector<LinePoint> filled;
+  RowPrefix prefix;
+  std::vector<float> peaks, widths;
+  End end;
+  for (int e = 0; e < n; ++e) {
+    for (int dir : {-1, 1}) {
+      if (!EndAt(p, e, dir, rows, &peaks, &widths, &end)) continue;
+      const int last = end.last, anchor = end.anchor, end_row = end.end_row, limit_row = end.limit_row;
+      const double half = end.half;
+      const double d0 = 2.0 * half + 1.0;  // along from the anchor: the stretch's own light left out
+      // Anchors: the chosen point and its neighbours in the stretch.
+      int anchors[3] = {0, 0, 0};
+      int anchor_count = 0;
+      for (int a : {anchor, anchor - dir, anchor + dir}) {
+        if (anchor_count == kEndAnchors) break;
+        if (a < 0 || a >= n) continue;
+        const int ra = p[static_cast<size_t>(a)].row;
+        if (dir * (ra - end_row) > 0 || std::abs(ra - end_row) > kEndStretchRows) continue;
+        if (dir * (ra - p[static_cast<size_t>(last)].row) < 0) continue;
+        anchors[anchor_count++] = a;
+      }
+      // The block of rows from the innermost anchor to limit_row, columns within reach.
+      int inner_row = end_row;
+      for (int i = 0; i < anchor_count; ++i)
+        inner_row = dir < 0 ? std::max(inner_row, p[static_cast<size_t>(anchors[i])].row)
+                            : std::min(inner_row, p[static_cast<size_t>(anchors[i])].row);
+      const int row_lo = std::min(inner_row, limit_row), row_hi = std::max(inner_row, limit_row);
+
+      // Each row's columns: those any hypothesis's boxes can reach.
+      const double box_reach = 4.0 * half * std::sqrt(1.0 + kEndMaxSlope * kEndMaxSlope) + 1.0;
+      prefix.first_row = row_lo;
+      prefix.first_col.clear();
+      prefix.cols.clear();
+      prefix.offset.clear();
+      size_t total = 0;
+      for (int rr = row_lo; rr <= row_hi; ++rr) {
+        double lo = cols, hi = -1;
+        for (int i = 0; i < anchor_count; ++i) {
+          const LinePoint& q = p[static_cast<size_t>(anchors[i])];
+          const double reach = kEndMaxSlope * std::abs(rr - q.row) + box_reach;
+          lo = std::min(lo, q.column - reach);
+          hi = std::max(hi, q.column + reach);
+        }
+        const int c0 = ClampToIndex(std::floor(lo), cols), c1 = ClampToIndex(std::ceil(hi), cols);
+        prefix.first_col.push_back(c0);
+        prefix.cols.push_back(c1 - c0 + 1);
+        prefix.offset.push_back(total);
+        total += static_cast<size_t>(c1 - c0 + 2);
+      }
+      prefix.sums.resize(total);
+      for (int rr = row_lo; rr <= row_hi; ++rr) {
+        const size_t i = static_cast<size_t>(rr - row_lo);
+        const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
+        const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
+        long* out = prefix.sums.data() + prefix.offset[i];
+        long acc = 0;
+        out[0] = 0;
+        for (int c = 0; c < prefix.cols[i]; ++c) {
+          const int col = prefix.first_col[i] + c;
+          acc += SignedDifference(a[col * step], b[col * step]);
+          out[c + 1] = acc;
+        }
+      }
+      // The hypotheses: lines through an anchor at slopes kEndMinSlope..kEndMaxSlope either way, the angle
+      // stepped so that the line moves at most a quarter of the half width across over the rows summed.
+      const int span = row_hi - row_lo + 1;
+      struct Best {
+        double z = 0;
+        int anchor = -1, rows = 0;
+        double slope = 0, contrast = 0;
+      } best;
+      auto z_of = [&](double s0, double s1, double s2, long n0, long n1, long n2) {
+        if (n0 < 2 || n1 < 2 || n2 < 2) return 0.0;
+        const double contrast = s0 / n0 - 0.5 * (s1 / n1 + s2 / n2);
+        return contrast / (noise_dn * std::sqrt(kGapCorrelation * (1.0 / n0 + 0.25 / n1 + 0.25 / n2)));
+      };
+      // Sums of the three boxes over the rows j = 1..; visit(j, z) after each row.
+      // The line through (row of point a, column ca) at slope s.
+      auto run = [&](int a, double ca, double s, int max_rows, auto&& visit) {
+        const int ra = p[static_cast<size_t>(a)].row;
+        const double length = std::sqrt(1.0 + s * s);
+        const double hl = half * length;
+        double sum[3] = {0, 0, 0};
+        long count[3] = {0, 0, 0};
+        for (int j = 1; j <= max_rows; ++j) {
+          const int rr = ra + dir * j;
+          const double cl = ca + s * (rr - ra);
+          // Columns whose along from the anchor (outwards) is at least d0: dir ((c - ca) s + (rr - ra)) >= d0 L.
+          const double bound = ca + (d0 * length * dir - (rr - ra)) / s;  // along = d0 there
+          const bool above = dir * s > 0;  // along grows with the column
+          const double edges[3][2] = {{cl - hl, cl + hl}, {cl - 4 * hl, cl - 2 * hl}, {cl + 2 * hl, cl + 4 * hl}};
+          for (int box = 0; box < 3; ++box) {
+            double lo = edges[box][0], hi = edges[box][1];
+            if (above) lo = std::max(lo, bound); else hi = std::min(hi, bound);
+            if (!(hi >= lo)) continue;
+            int c_count = 0;
+            const long v = prefix.Sum(rr, static_cast<int>(std::ceil(lo)), static_cast<int>(std::floor(hi)), &c_count);
+            sum[box] += static_cast<double>(v);
+            count[box] += c_count;
+          }
+          visit(j, sum, count);
+        }
+      };
+      const double theta_lo = std::atan(kEndMinSlope), theta_hi = std::atan(kEndMaxSlope);
+      for (int i = 0; i < anchor_count; ++i) {
+        const int a = anchors[i];
+        const int ra = p[static_cast<size_t>(a)].row;
+        const int max_rows = std::abs(limit_row - ra);
+        const int min_rows = std::abs(end_row - ra) + kEndMinRows;
+        if (max_rows < min_rows) continue;
+        for (double theta = theta_lo; theta <= theta_hi;) {
+          const double tan_t = std::tan(theta), length = std::sqrt(1.0 + tan_t * tan_t);
+          for (int sign : {-1, 1}) {
+            const double s = sign * tan_t;
+            run(a, p[static_cast<size_t>(a)].column, s, max_rows, [&](int j, const double* sum, const long* count) {
+              if (j < min_rows) return;
+              const double z = z_of(sum[0], sum[1], sum[2], count[0], count[1], count[2]);
+              if (z > best.z) {
+                best.z = z;
+                best.anchor = a;
+                best.rows = j;
+                best.slope = s;
+                best.contrast = sum[0] / count[0] - 0.5 * (sum[1] / count[1] + sum[2] / count[2]);
+              }
+            });
+          }
+          theta += kEndAngleStep * half / (span * length);
+        }
+      }
+      if (best.anchor < 0 || best.z < min_z) continue;
+      const double best_ca = p[static_cast<size_t>(best.anchor)].column;
+      // Each half of the run on its own (the line goes on through it, it does not stop in its first rows).
+      const int ra = p[static_cast<size_t>(best.anchor)].row;
+      const int first_fill = std::abs(end_row - ra) + 1;
+      const int middle = (first_fill + best.rows) / 2;
+      double first_half[3] = {0, 0, 0}, all[3] = {0, 0, 0};
+      long first_count[3] = {0, 0, 0}, all_count[3] = {0, 0, 0};
+      run(best.anchor, best_ca, best.slope, best.rows, [&](int j, const double* sum, const long* count) {
+        if (j == middle) std::copy(sum, sum + 3, first_half), std::copy(count, count + 3, first_count);
+        if (j == best.rows) std::copy(sum, sum + 3, all), std::copy(count, count + 3, all_count);
+      });
+      if (z_of(first_half[0], first_half[1], first_half[2], first_count[0], first_count[1], first_count[2]) < kGapHalfZ ||
+          z_of(all[0] - first_half[0], all[1] - first_half[1], all[2] - first_half[2], all_count[0] - first_count[0],
+               all_count[1] - first_count[1], all_count[2] - first_count[2]) < kGapHalfZ)
+        continue;
+      const double length = std::sqrt(1.0 + best.slope * best.slope);
+      const double uncertainty = std::max(kGapMinUncertaintyPx, 2.0 * length * kEndAcrossSd);
+      const double ca = best_ca;
+      for (int j = first_fill; j <= best.rows; ++j) {
+        const int rr = ra + dir * j;
+        const double c = ca + best.slope * (rr - ra);
+        if (!(c >= 0 && c <= cols - 1)) continue;
+        LinePoint& q = filled.emplace_back();
+        q.row = rr;
+        q.column = static_cast<float>(c);
+        q.peak = static_cast<float>(best.contrast);
+        q.width = static_cast<float>(2.0 * half * length);
+        q.uncertainty_px = static_cast<float>(uncertainty);
+        q.quality = static_cast<float>(kGapQuality / (1.0 + uncertainty * uncertainty));
+        q.flags = 0;
+      }
+    }
+  }
+  if (filled.empty()) return 0;
+  std::sort(filled.begin(), filled.end(), [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
+  // Two ends' runs may reach the same rows (an upper end's and a lower end's facing each other): one each.
+  filled.erase(std::unique(filled.begin(), filled.end(), [](const LinePoint& a, const LinePoint& b) { return a.row == b.row; }),
+               filled.end());
+  const int count = static_cast<int>(filled.size());
+  std::vector<LinePoint> merged;
+  merged.reserve(p.size() + filled.size());
+  std::merge(p.begin(), p.end(), filled.begin(), filled.end(), std::back_inserter(merged),
+             [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
+  p.swap(merged);
+  return count;
+}
 
 int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
                  std::vector<LinePoint>* line_points, double min_z) {
@@ -338,14 +664,15 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       q.flags = 0;
     }
   }
-  if (filled.empty()) return 0;
   const int count = static_cast<int>(filled.size());
-  std::vector<LinePoint> merged;
-  merged.reserve(n + filled.size());
-  std::merge(p.begin(), p.end(), filled.begin(), filled.end(), std::back_inserter(merged),
-             [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
-  p.swap(merged);
-  return count;
+  if (!filled.empty()) {
+    std::vector<LinePoint> merged;
+    merged.reserve(n + filled.size());
+    std::merge(p.begin(), p.end(), filled.begin(), filled.end(), std::back_inserter(merged),
+               [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
+    p.swap(merged);
+  }
+  return count + ExtendLineEnds(on, off, channel, noise_dn, line_points, min_z * kEndMinZ / kGapMinZ);
 }
 
 }  // namespace rotoscan::laser::detail
