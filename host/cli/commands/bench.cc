@@ -36,6 +36,7 @@ struct BenchCommandOptions {
   double voxel = 0.5;             // mesh: fusion voxel, mm
   int threads = 2;                // mesh: threads for both
   bool watertight = false;        // mesh: also the watertight fusion
+  bool extend_line_ends = false;  // accuracy --scene: ExtractOptions::extend_line_ends
 };
 
 // bench accuracy --scene FILE...: each scene rendered (--steps table steps over the whole turn) and its
@@ -67,7 +68,9 @@ int RunBenchSceneAccuracy(const BenchCommandOptions& o, const Context& context) 
       code = ReportStatus(context, "bench", status);
       break;
     }
-    auto a = pipeline::MeasureLineAccuracyByPart(options.out, laser::ExtractOptions{}, 0, 1.0, context.progress);
+    laser::ExtractOptions extract;
+    extract.extend_line_ends = o.extend_line_ends;
+    auto a = pipeline::MeasureLineAccuracyByPart(options.out, extract, 0, 1.0, context.progress);
     if (!a.ok()) {
       code = ReportStatus(context, "bench", a.status());
       break;
@@ -295,6 +298,9 @@ void RegisterBench(CLI::App& app, const Context& context, int* exit_code) {
                   "accuracy --scene: render the lasers' speckle through this f-number instead of the scene's "
                   "(the webcam preset's is 4; a webcam's own lens is nearer 2-2.4: README)")
       ->check(CLI::Range(0.5, 64.0));
+  sub->add_flag("--extend-line-ends", o.extend_line_ends,
+                "accuracy --scene: also look past each stretch's end for a faint continuation (opt-in "
+                "extraction step: more rows found, more rows over 1 px; README)");
   sub->add_option("--board-poses", o.board_poses,
                   "accuracy --calib: also calibrate from a hand-held checkerboard bundle of this many poses "
                   "(joint refinement only: it fixes the distortion)")

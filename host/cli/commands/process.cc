@@ -25,6 +25,7 @@ struct ProcessCommandOptions {
   bool estimate_lamp = false;
   cloud::FilterOptions filter;
   bool keep_outliers = false;
+  bool extend_line_ends = false;
 };
 
 int RunProcess(const ProcessCommandOptions& o, const Context& context) {
@@ -43,6 +44,7 @@ int RunProcess(const ProcessCommandOptions& o, const Context& context) {
   auto estimator = laser::ParseEstimator(o.estimator);
   if (!estimator.ok()) return fail(estimator.status());
   options.extract.estimator = *estimator;
+  options.extract.extend_line_ends = o.extend_line_ends;
   options.threads = o.threads;
   options.merge = !o.no_merge;
   options.min_quality = static_cast<float>(o.min_quality);
@@ -125,6 +127,9 @@ void RegisterProcess(CLI::App& app, const Context& context, int* exit_code) {
   sub->add_option("--lasers", o.lasers, "left, right or both")->capture_default_str();
   sub->add_option("--min-quality", o.min_quality, "drop points of lower quality (0..1)")
       ->capture_default_str();
+  sub->add_flag("--extend-line-ends", o.extend_line_ends,
+                "extraction: also look past each stretch's end for a faint continuation (more points on "
+                "faint surfaces, and more of them off by over 1 px: README)");
   sub->add_flag("--no-merge", o.no_merge, "keep both lasers' points where they overlap");
   sub->add_flag("--keep-outliers", o.keep_outliers,
                 "no statistical outlier removal (by default a point goes when its mean distance to its "

@@ -718,7 +718,9 @@ TEST(ObjectRowsTest, FaintStretchFoundPastItsEnd) {
     ASSERT_TRUE(renderer.ok());
     ExtractOptions without;
     without.fill_gaps = false;
-    LineExtractor extractor{ExtractOptions{}}, plain(without);
+    ExtractOptions with_ends;
+    with_ends.extend_line_ends = true;
+    LineExtractor extractor{with_ends}, plain(without);
     for (int step = 0; step < steps; ++step) {
       const double angle = step * 2.0 * 3.14159265358979323846 / steps;
       const sim::RenderedStep frames =

@@ -456,7 +456,8 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   stats.glints = detail::FlagGlints(terms.data(), rows, &line->points);
   // Rows missing inside a stretch, found along its curve (gaps.cc), on the same frames as steep.cc.
   if (o.fill_gaps && stats.noise_on_lit) {
-    stats.gap_filled = detail::FillLineGaps(on, off, channel, stats.noise_dn, &line->points);
+    stats.gap_filled = detail::FillLineGaps(on, off, channel, stats.noise_dn, &line->points, detail::kGapMinZ,
+                                              o.extend_line_ends);
     stats.found += stats.gap_filled;
   }
   // A steep line measured across itself (steep.cc), on frames whose noise was measured on lit pixels:

@@ -327,10 +327,11 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
 // stretch's curve by a matched filter over several rows (gaps.cc); `noise_dn` the frame's noise sigma.
 // A row is filled where the matched filter's contrast reaches min_z times its noise (gaps.cc); then the
 // stretches' ends are looked past (ExtendLineEnds, at min_z * kEndMinZ / kGapMinZ). The filled points are
-// inserted in row order. Returns how many (both parts).
+// inserted in row order. Returns how many (both parts; the second only with extend_ends,
+// ExtractOptions::extend_line_ends).
 constexpr double kGapMinZ = 6.0;
 int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                 std::vector<LinePoint>* points, double min_z = kGapMinZ);
+                 std::vector<LinePoint>* points, double min_z = kGapMinZ, bool extend_ends = true);
 // FillLineGaps's second part (gaps.cc): a stretch's faint continuation past its end, along a straight line
 // from its end, where the matched filter summed over the run of rows reaches min_z (kEndMinZ at the gap
 // step's kGapMinZ). Returns how many rows it filled. CountLineEnds: the ends it looks past.

@@ -442,7 +442,7 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
 }
 
 int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                 std::vector<LinePoint>* line_points, double min_z) {
+                 std::vector<LinePoint>* line_points, double min_z, bool extend_ends) {
   std::vector<LinePoint>& p = *line_points;
   const size_t n = p.size();
   if (n < 2 * kGapMinSide || noise_dn <= 0) return 0;
@@ -672,6 +672,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
                [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
     p.swap(merged);
   }
+  if (!extend_ends) return count;
   return count + ExtendLineEnds(on, off, channel, noise_dn, line_points, min_z * kEndMinZ / kGapMinZ);
 }
 
