@@ -510,9 +510,10 @@ TEST(RealFramesTest, AlbedoStepOnABlackLevelDarkCellIsDividedOut) {
 // blurred 2 px (tenth session): exponent 1.0 +0.169 px, 1.1 -0.118 px, 1.2 -0.412 px; blurred 1 px
 // (kAlbedoBlurPx, eleventh session): exponent 1.0 -0.165, 0.95 -0.005, 0.9 (kAlbedoExponent) +0.151 px.
 // The exponent is set on the rendered textured set, whose bias WebcamObjectRowsByCause checks (0.9: -0.025
-// px; 0.95: -0.097): its edges are blurred ~1.2 px, not 2 (extract_steps.h). Not understood (eleventh
-// session): this synthetic row blurred 1 to 1.5 px instead of 2 leaves +0.3 to +0.7 px on main's rule and
-// this one alike (peak 180 too, so not saturation).
+// px; 0.95: -0.097): its edges are blurred ~1.2 px, not 2 (extract_steps.h). Blurred 1 to 1.5 px instead
+// of 2, this row leaves +0.45 to +0.73 px (main's rule +0.31 to +0.71; peak 180 too, so not saturation):
+// the window (the extent +- its width) cuts the line's dark side, a window of 4 widths each side halves it
+// (+0.25 to +0.36 px), and an exponent under 1 under-corrects a weak blur.
 TEST(RealFramesTest, AlbedoDivisionIsUnbiasedUnderTheWebcamBlur) {
   std::mt19937 rng(17);
   std::uniform_real_distribution<double> centre_of(50.0, 70.0), step_offset(-3.0, 3.0);
