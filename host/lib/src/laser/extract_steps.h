@@ -50,9 +50,9 @@ constexpr double kSpeckleTerm2 = 0.08 * 0.08;
 constexpr uint8_t kFlagLopsided = 0x80;
 // The albedo inside the line (point.cc, design notes "Albedo inside the line"): an edge is seen where the
 // laser-off row over the centre-of-mass run holds a value at least kAlbedoMinOffDn and its highest
-// exceeds 1.6 x its lowest + kAlbedoStepDn; the laser-off row is then blurred by a Gaussian of
-// kAlbedoBlurPx (the red channel's resolution after demosaicing and 4:2:0 chroma: measured, extract.cc)
-// before the difference is divided by it, over a window of at most kAlbedoMaxWindow pixels.
+// exceeds 1.6 x its lowest + kAlbedoStepDn; the difference is then divided by the laser-off row, over a
+// window of at most kAlbedoMaxWindow pixels: by the row itself where its edge is sharp (kAlbedoSharpEdgeNum),
+// else by the row blurred by a Gaussian of kAlbedoBlurPx, to the power kAlbedoExponent.
 constexpr int kAlbedoMinOffDn = 12;
 // The dark level may be as low as the division's floor (3 DN, AlbedoNormalisedCentre): the webcam's dark
 // cells read 3-6 DN in the red channel (black level, JPEG), and with 4 DN the rows on them were left
@@ -62,18 +62,53 @@ constexpr int kAlbedoMinLowDn = 3;
 constexpr int kAlbedoEdgeSpanPx = 4;
 constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
-constexpr double kAlbedoBlurPx = 2.0;
-// The difference is divided by the blurred laser-off row to this power, not to 1: the blurred row
-// understates the albedo's contrast inside the line (the blur of a product is not the product of the
-// blurs), and the centre of the plain ratio stayed pulled towards the bright side. On issue 15's textured
-// set (3 steps x 2 lasers, per row, no smoothing) the divided rows' mean error towards the laser-off
-// row's brighter side was, by exponent: 0.8 +0.4 px (not printed: > 1 px after smoothing 153 of 2,316
-// rows at f/4); 1.0 +0.164 / +0.170 px (f/4 / f/2.4); 1.05 +0.091 / +0.095; 1.1 +0.016 / +0.020;
-// 1.15 -0.061 / -0.056; 1.2 -0.137 / -0.133; 1.4 -0.445. 1.1 takes the bias out; the object's rows over
-// 1 px across after smoothing (ObjectRowsTest) went 54 -> 41 at f/4 and 54 -> 39 at f/2.4 (1.15: 39 / 37,
-// but the per-row RMS rises: 0.654 -> 0.674 px). A bias survives the along-line smoothing; the scatter
-// does not. With the exponent, kAlbedoBlurPx 2 stays the best blur (1.5: 53 / 49 rows; 2.5: 101 / 88).
-constexpr double kAlbedoExponent = 1.1;
+// The laser-off row's edge is sharp where its steepest change over two pixels holds at least
+// kAlbedoSharpEdgeNum / kAlbedoSharpEdgeDen of the window's range (low to high) and the laser-on row does
+// not saturate there: the frame was not blurred (a rendered frame without demosaicing or JPEG, a
+// machine-vision camera), the difference is the laser's profile times the albedo pixel by pixel, and
+// dividing by the row itself gives the profile back (noise-free rows, a Gaussian line of sigma 4 px over a
+// 0.9 / 0.09 step 0-6 px from its centre, pixel-integrated: 0.009 px RMS, worst 0.021; with the blurred
+// divisor of the tenth session, 2 px and exponent 1.1, 0.567 / 1.416 px). A step blurred by a Gaussian of
+// sigma b changes by erf(1 / (b sqrt 2)) of its range over two pixels at most: b 0 px 1.0, 0.5 px 0.95,
+// 0.75 px 0.82, 1 px 0.68, 1.25 px 0.58, 2 px 0.38 (over one pixel the unblurred step's share depends on
+// its phase, 0.5 to 1: no threshold separates it from a 0.75 px blur). Seen (issue 15, eleventh session):
+// POV-Ray's and our unblurred renderer's checker rows 0.9-1 (7 of ~2,400 under 0.8); the webcam sets'
+// divided rows (2 steps, both scenes, 1,416 rows) 0.45-0.6, 8 at 0.8 or more.
+constexpr int kAlbedoSharpEdgeNum = 4, kAlbedoSharpEdgeDen = 5;
+// Where the edge is sharp the window reaches kAlbedoSharpReach half-maximum widths beyond the extent (the
+// blurred rule's 1 cut the line where the extent is only the bright side's part: a step 2 px from the
+// centre of a line of sigma 4 px left the centre +1.3 px towards the bright side, 4 px +3.1 px; 2 widths
+// +0.11 / +1.19, 3 +0.01 / +0.24, 4 +0.01 / -0.05 (RealFramesTest.AlbedoEdgeAlongTheLineInAnUnblurredFrame's
+// rows at peak 220, every divided row so widened).
+// Not for the blurred rule: 2 widths there put the glossy set's object rows over 1 px across from 2.20 to
+// 2.38 % (8 steps, f/4), textured 1.00 to 1.09 %.
+constexpr int kAlbedoSharpReach = 4;
+// Nor where the laser-on row saturates within the window: the difference there is clipped, not the
+// profile times the albedo, and its division by the row itself pulls the centre to the dark side. Such
+// windows are divided by the blurred row (POV-Ray's bright checker at 1280x960, the white cells
+// saturated: rows over 1 px 19.3 % divided by the row itself, 17.1 % so; 640x480 8.5 / 9.6 % but RMS
+// 0.285 / 0.227 px; our unblurred renderer's checker cylinder at 1280x960: 7.7 / 15.5 %; all measured with
+// a one-pixel sharpness test and the blurred rule's window, before the two settings above).
+// Otherwise (a webcam's frame: demosaicing, 4:2:0 chroma, the optics) the difference is the blur of the
+// profile times the albedo, which no division by the blurred row undoes; a blur and an exponent of the
+// divisor that leave the least error were measured on issue 15's sets (session 11, `rotoscan bench accuracy
+// --scene` glossy + textured, the textured object's rows over 1 px across / RMS per row; glossy within
+// 0.1 points either way): 8 steps f/4, 8 steps f/2.4, 6 steps f/4 (angles not tuned on):
+//   blur 2 px, exponent 1.1 (session 10's):   1.894 % 0.341 px | 1.441 % 0.317 | 1.835 % 0.379
+//   blur 1 px, exponent 1:                    1.295 % 0.311    | 1.360 % 0.261 | 1.921 % 0.370
+//   blur 1 px, exponent 0.95:                 1.020 % 0.298    | 1.279 % 0.248 | 1.425 % 0.353
+//   blur 1 px, exponent 0.9:                  1.101 % 0.288    | 1.214 % 0.248 | 1.209 % 0.345
+// and at f/4, 8 steps: blur 0 (the row itself) 2.801 %; 0.7 px 1.700 / 1.263 % (exponent 1 / 0.95);
+// 1.25 px 1.198 / 1.085 %; 1.5 px 1.295 % (exponent 1.05), 1.263 % (0.95). 1 px is about the webcam
+// frames' own edge blur (their steepest two-pixel change 0.5-0.6 of the range: ~1.2 px). An exponent under
+// 1 divides the albedo out only in part: the division amplifies the noise and speckle of the dark side.
+// 0.9, not 0.95: it leaves the textured set's divided rows unbiased (per row, no smoothing, 8 steps: mean
+// error towards the bright side -0.025 px at f/4 and f/2.4; 0.95: -0.097 / -0.098; ObjectRowsTest), and
+// it has the fewest rows over 1 px at f/2.4 and on the 6 steps not tuned on. On the synthetic step blurred
+// 2 px (RealFramesTest.AlbedoDivisionIsUnbiasedUnderTheWebcamBlur) it leaves +0.151 px (0.95: -0.005,
+// 1.0: -0.165; session 10's 2 px / 1.1: -0.118).
+constexpr double kAlbedoBlurPx = 1.0;
+constexpr double kAlbedoExponent = 0.9;
 constexpr int kAlbedoMaxWindow = 256;
 // The division's residual (px, about two standard errors), added to a divided point's uncertainty in
 // place of the texture term (ScoreAlbedoDivision): on issue 15's textured set (3 steps x 2 lasers, f/4)
@@ -264,9 +299,11 @@ struct PointTerms {
 
 // Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line).
 bool AlbedoEdgeInside(const uint8_t* b, int first, int last);
-// The centre of mass of the difference divided by the blurred laser-off row, over the half-maximum extent
-// [first, last] widened by its width each side; negative when it fails.
-double AlbedoNormalisedCentre(const uint8_t* d, const uint8_t* b, int cols, int first, int last);
+// The centre of mass of the difference d divided by the laser-off row b (blurred, or itself where its edge
+// is sharp and the laser-on row a does not saturate: kAlbedoSharpEdgeNum), over the half-maximum extent
+// [first, last] widened by its width each side (kAlbedoSharpReach widths where sharp); negative when it
+// fails.
+double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last);
 
 // Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
 // of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test

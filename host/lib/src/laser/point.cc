@@ -70,7 +70,8 @@ namespace detail {
 namespace {
 
 // The Gaussian kernel of kAlbedoBlurPx, radius 3 sigma.
-constexpr int kAlbedoRadius = 6;
+constexpr int kAlbedoRadius = 3;
+static_assert(kAlbedoRadius >= 3 * kAlbedoBlurPx, "the kernel's radius is 3 sigma");
 struct AlbedoKernel {
   double w[2 * kAlbedoRadius + 1];
   AlbedoKernel() {
@@ -126,31 +127,54 @@ bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
   return above >= kAlbedoMinLevelPx && last - first + 1 - above >= kAlbedoMinLevelPx;
 }
 
-double AlbedoNormalisedCentre(const uint8_t* d, const uint8_t* b, int cols, int first, int last) {
+double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last) {
   static const AlbedoKernel kernel;
   // The window: the half-maximum extent widened by its own width each side (the line's part on a dark
   // cell lies below the difference's half maximum, often below its centre-of-mass level).
   const int width = last - first + 1;
-  const int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
-  const int n = hi - lo + 1;
-  if (n > kAlbedoMaxWindow) return -1.0;
-  double ratio[kAlbedoMaxWindow];
-  int high = 0;
-  for (int i = lo; i <= hi; ++i) high = std::max(high, int{b[i]});
-  const double floor_dn = std::max(3.0, 0.05 * high);
+  int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
+  if (hi - lo + 1 > kAlbedoMaxWindow) return -1.0;
+  // The edge's sharpness (kAlbedoSharpEdgeNum) and whether the laser-on row saturates there.
+  int high = 0, low = 255, steepest = 0;
+  bool saturated = false;
   for (int i = lo; i <= hi; ++i) {
-    double sw = 0, sv = 0;
-    for (int k = std::max(0, i - kAlbedoRadius); k <= std::min(cols - 1, i + kAlbedoRadius); ++k) {
-      const double w = kernel.w[k - i + kAlbedoRadius];
-      sw += w;
-      sv += w * b[k];
+    saturated |= a[i] == 255;
+    high = std::max(high, int{b[i]});
+    low = std::min(low, int{b[i]});
+    if (i > lo + 1) steepest = std::max(steepest, std::abs(int{b[i]} - int{b[i - 2]}));
+  }
+  const double floor_dn = std::max(3.0, 0.05 * high);
+  const bool sharp = kAlbedoSharpEdgeDen * steepest >= kAlbedoSharpEdgeNum * (high - low) && !saturated;
+  // The ratio's peak is looked for within the extent widened by half its width each side (by
+  // kAlbedoSharpReach - 1/2 widths where the edge is sharp).
+  int reach2 = width;  // doubled
+  if (sharp) {
+    lo = std::max(0, first - kAlbedoSharpReach * width);
+    hi = std::min(cols - 1, last + kAlbedoSharpReach * width);
+    reach2 = (2 * kAlbedoSharpReach - 1) * width;
+    if (hi - lo + 1 > kAlbedoMaxWindow) return -1.0;
+  }
+  const int n = hi - lo + 1;
+  double ratio[kAlbedoMaxWindow];
+  if (sharp) {
+    // An unblurred frame: the difference is the profile times the albedo pixel by pixel.
+    for (int i = lo; i <= hi; ++i) ratio[i - lo] = d[i] / std::max(static_cast<double>(b[i]), floor_dn);
+  } else {
+    // A blurred one: by the row blurred by kAlbedoBlurPx, to the power kAlbedoExponent (extract_steps.h).
+    for (int i = lo; i <= hi; ++i) {
+      double sw = 0, sv = 0;
+      for (int k = std::max(0, i - kAlbedoRadius); k <= std::min(cols - 1, i + kAlbedoRadius); ++k) {
+        const double w = kernel.w[k - i + kAlbedoRadius];
+        sw += w;
+        sv += w * b[k];
+      }
+      ratio[i - lo] = d[i] * AlbedoInverseDivisor(sv / sw, floor_dn);
     }
-    ratio[i - lo] = d[i] * AlbedoInverseDivisor(sv / sw, floor_dn);
   }
   // The centre of mass of the ratio, as kCenterOfMass's (level 0.15 of its peak), from the ratio's
-  // highest value within the extent widened by half its width each side.
-  int peak = std::max(0, first - lo - width / 2);
-  const int search_end = std::min(n - 1, last - lo + width / 2);
+  // highest value within the reach above.
+  int peak = std::max(0, first - lo - reach2 / 2);
+  const int search_end = std::min(n - 1, last - lo + reach2 / 2);
   for (int i = peak + 1; i <= search_end; ++i)
     if (ratio[i] > ratio[peak]) peak = i;
   const double level = kComLevelNum * ratio[peak] / kComScale;
@@ -182,7 +206,7 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
     // profile times the albedo, which pulls the centre of mass towards the brighter side by up to a
     // quarter of the width. The centre of the profile divided by the albedo as the laser-off frame
     // shows it, taken through the same optics (design notes, "Albedo inside the line").
-    const double normalised = AlbedoNormalisedCentre(d, b, cols, c.first, c.last);
+    const double normalised = AlbedoNormalisedCentre(a, d, b, cols, c.first, c.last);
     if (normalised >= 0) {
       column = normalised;
       albedo_edge = true;
