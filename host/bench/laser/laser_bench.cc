@@ -21,6 +21,8 @@
 //
 //   BM_ExtractWebcam/<smoothing>       the same on typical frames: rendered webcam frames (below), their
 //                                      red channel as gray; compare with BM_StreamReadWebcam
+//   BM_Noise/<frames>                  the noise sample alone (the threshold's): 0 the frames above,
+//                                      1 the typical frames
 //
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
 // 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows; and the line is
@@ -41,6 +43,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "laser/extract_steps.h"
 #include "rotoscan/geometry/camera.h"
 #include "rotoscan/geometry/plane.h"
 #include "rotoscan/laser/extract.h"
@@ -188,13 +191,16 @@ BENCHMARK(BM_ExtractTriangulate)
     ->Unit(benchmark::kMicrosecond);
 
 // Typical frames (WebcamFrames): the default extractor, smoothing on (1) or off (0) or on without the steep
-// step (2) or without the line-end step (3, ends.cc), and triangulation.
+// step (2) or without the line-end step (3, ends.cc), or the row loop alone (4: the noise sample, the row
+// pass, the rows' points and their scores; no gap, steep or line-end step, no smoothing), and
+// triangulation.
 void BM_ExtractWebcam(benchmark::State& state) {
   const Frames& f = WebcamFrames();
   rotoscan::laser::ExtractOptions options;
-  if (state.range(0) == 0) options.smooth_half_rows = 0;
-  if (state.range(0) == 2) options.steep_across = false;
-  if (state.range(0) == 3) options.line_ends = false;
+  if (state.range(0) == 0 || state.range(0) == 4) options.smooth_half_rows = 0;
+  if (state.range(0) == 2 || state.range(0) == 4) options.steep_across = false;
+  if (state.range(0) == 3 || state.range(0) == 4) options.line_ends = false;
+  if (state.range(0) == 4) options.fill_gaps = false;
   rotoscan::laser::LineExtractor extractor(options);
   static const rotoscan::laser::Triangulator triangulator(Camera());
   rotoscan::laser::Line line;
@@ -213,7 +219,22 @@ void BM_ExtractWebcam(benchmark::State& state) {
   state.counters["points_per_frame"] =
       static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
 }
-BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Arg(3)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Arg(3)->Arg(4)->Unit(benchmark::kMicrosecond);
+
+// The noise sample alone (noise.cc, the first thing each frame does), from memory: on the worst-case
+// frames (0; their background is lit everywhere) and on the typical frames (1).
+void BM_Noise(benchmark::State& state) {
+  const Frames& f = state.range(0) == 0 ? GrayFrames() : WebcamFrames();
+  size_t i = 0;
+  bool on_lit = false;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(rotoscan::laser::detail::EstimateNoise(f.on[i], f.off[i], 0, &on_lit));
+    i = (i + 1) % f.on.size();
+  }
+  SetCounters(state, 2u * f.on[0].total());
+}
+BENCHMARK(BM_Noise)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+
 
 // The parts of BM_ExtractTriangulate/0/1/0 alone, on the lines it extracts (per row, then copied each
 // iteration): the along-line smoothing, and the triangulation.

@@ -126,6 +126,43 @@ TEST(KernelsTest, Sse2MatchesPortableOnRandomRows) {
   }
 }
 
+// The noise estimate's SSE2 stretch (noise.cc) against its per-pixel definition, on mostly black rows
+// with lit stretches (a webcam frame's kind: the stretch skips 16 pixels none of which is sampled): the
+// histograms' sampled bins, summed over the four interleaved ones, must be the same.
+TEST(KernelsTest, NoiseStretchMatchesPerPixelHistogram) {
+  std::mt19937 rng(19);
+  std::uniform_int_distribution<int> byte(0, 255), dark(0, kNoiseMinOffDn - 1), coin(0, 3);
+  for (int trial = 0; trial < 2000; ++trial) {
+    const int cols = std::uniform_int_distribution<int>(16, 300)(rng);
+    const int near = coin(rng) < 2 ? 64 : 256;
+    const int min_off = coin(rng) == 0 ? 0 : kNoiseMinOffDn;
+    std::vector<uint8_t> on(static_cast<size_t>(cols)), off(static_cast<size_t>(cols));
+    const int lit_from = std::uniform_int_distribution<int>(0, cols - 1)(rng);
+    const int lit_to = lit_from + std::uniform_int_distribution<int>(0, 40)(rng);
+    for (int i = 0; i < cols; ++i) {
+      const bool lit = (i >= lit_from && i < lit_to) || (coin(rng) == 0 && coin(rng) == 0 && coin(rng) == 0);
+      off[static_cast<size_t>(i)] = static_cast<uint8_t>(lit ? byte(rng) : dark(rng));
+      on[static_cast<size_t>(i)] = static_cast<uint8_t>(coin(rng) == 0 ? byte(rng) : std::clamp(off[static_cast<size_t>(i)] + coin(rng) - 1, 0, 255));
+    }
+    NoiseHistograms partial{};
+    const int from = std::uniform_int_distribution<int>(0, cols - 16)(rng);
+    const int end = cols;
+    const int stopped = sse2::NoiseStretch(on.data(), off.data(), from, end, near, min_off, &partial);
+    ASSERT_GE(stopped, end - 15);
+    ASSERT_LE(stopped, end);
+    std::vector<uint32_t> expected(static_cast<size_t>(2 * near), 0);
+    for (int c = from; c < stopped; ++c) {
+      if (off[static_cast<size_t>(c)] < min_off) continue;
+      ++expected[static_cast<size_t>(std::clamp(int{on[static_cast<size_t>(c)]} - int{off[static_cast<size_t>(c)]}, -near, near - 1) + near)];
+    }
+    for (int k = 0; k < 2 * near; ++k) {
+      const uint32_t got = partial[0][static_cast<size_t>(k)] + partial[1][static_cast<size_t>(k)] +
+                           partial[2][static_cast<size_t>(k)] + partial[3][static_cast<size_t>(k)];
+      ASSERT_EQ(got, expected[static_cast<size_t>(k)]) << "trial " << trial << " bin " << k;
+    }
+  }
+}
+
 TEST(KernelsTest, SmoothingScreensMatchPortable) {
   std::mt19937 rng(17);
   std::normal_distribution<float> noise(0.0f, 0.3f);

@@ -313,8 +313,9 @@ inline int RowGroups(const uint8_t* a, const uint8_t* b, uint8_t* d, int cols, i
 // The noise estimate's histogram (noise.cc) of one stretch [from, end) of single-channel rows a and b,
 // 16 pixels at a time: bins of a - b clamped to [-near, near - 1] plus near, counted into four
 // interleaved histograms by pixel index & 3; a pixel whose b is under min_off goes to bin kNoiseDumpBin
-// instead (not sampled). Returns where it stopped (noise.cc's per-pixel loop does the rest, and every
-// other layout).
+// instead (not sampled), and 16 pixels of which none is sampled are passed over without reading a (the
+// dump bin's count is never read). Returns where it stopped (noise.cc's per-pixel loop does the rest, and
+// every other layout).
 inline int NoiseStretch(const uint8_t* a, const uint8_t* b, int from, int end, int near, int min_off,
                         NoiseHistograms* partial) {
   int c = from;
@@ -322,14 +323,17 @@ inline int NoiseStretch(const uint8_t* a, const uint8_t* b, int from, int end, i
   const __m128i zero = _mm_setzero_si128(), offset = _mm_set1_epi16(static_cast<int16_t>(near));
   const __m128i lo = _mm_set1_epi16(static_cast<int16_t>(-near)), hi = _mm_set1_epi16(static_cast<int16_t>(near - 1));
   const __m128i below = _mm_set1_epi16(static_cast<int16_t>(min_off)), dump = _mm_set1_epi16(kNoiseDumpBin);
+  const __m128i lowest = _mm_set1_epi8(static_cast<char>(min_off));  // min_off is 0 or kNoiseMinOffDn
   auto bin = [&](__m128i x, __m128i y) {
     const __m128i value = _mm_add_epi16(_mm_min_epi16(_mm_max_epi16(_mm_sub_epi16(x, y), lo), hi), offset);
     const __m128i skip = _mm_cmplt_epi16(y, below);
     return _mm_or_si128(_mm_and_si128(skip, dump), _mm_andnot_si128(skip, value));
   };
   for (; c + 16 <= end; c += 16) {
-    const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + c));
     const __m128i vb = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + c));
+    // b >= min_off anywhere (unsigned bytes: max(b, min_off) == b)?
+    if (_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(vb, lowest), vb)) == 0) continue;
+    const __m128i va = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + c));
     _mm_store_si128(reinterpret_cast<__m128i*>(at), bin(_mm_unpacklo_epi8(va, zero), _mm_unpacklo_epi8(vb, zero)));
     _mm_store_si128(reinterpret_cast<__m128i*>(at + 8), bin(_mm_unpackhi_epi8(va, zero), _mm_unpackhi_epi8(vb, zero)));
     for (int q = 0; q < 16; q += 4) {
