@@ -242,6 +242,8 @@ Status ExtractOptions::Check() const {
     return bad("smooth_max_jump_px", "must be > 0");
   if (!(smooth_outlier_px > 0.0 && std::isfinite(smooth_outlier_px)))
     return bad("smooth_outlier_px", "must be > 0");
+  if (!(smooth_steep_step_px >= 0.0 && std::isfinite(smooth_steep_step_px)))
+    return bad("smooth_steep_step_px", "must be >= 0");
   return Status::Ok();
 }
 
@@ -470,7 +472,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     row_columns_.resize(n);
     for (size_t i = 0; i < n; ++i) row_columns_[i] = points[i].column;
     SmoothAlongLine(&points, o.smooth_half_rows, o.smooth_order, o.smooth_max_jump_px, o.smooth_outlier_px,
-                    &raw_columns_);
+                    &raw_columns_, stats.noise_on_lit ? o.smooth_steep_step_px : 0.0);
     detail::LimitSmoothing(row_columns_, &points);
   }
   for (LinePoint& p : line->points) p.flags &= static_cast<uint8_t>(~detail::kFlagLopsided);
