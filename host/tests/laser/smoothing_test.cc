@@ -61,7 +61,6 @@ struct ClassErrors {
   Errors own, fit, result;  // the row's own estimate, the smoothing's fit before its limits, the result
 };
 
-
 // One set's points, by class, and the along-line correlation of the own estimates' errors.
 struct SetErrors {
   std::map<std::string, ClassErrors> by_class;
@@ -69,7 +68,8 @@ struct SetErrors {
   int moved_past_uncertainty = 0;          // points the smoothing moved further than uncertainty_px
 };
 
-SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps, const ExtractOptions& options) {
+SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps,
+                     const ExtractOptions& options) {
   SetErrors out;
   out.lag_sum.assign(17, 0.0);
   out.lag_count.assign(17, 0.0);
@@ -139,7 +139,8 @@ SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps, 
         const auto t = by_row.find(p.row);
         if (t == by_row.end()) continue;  // spurious: no truth in the row
         const double own_across = pipeline::DistanceAcrossLine(q.column, q.row, by_row);
-        const double fit_across = pipeline::DistanceAcrossLine(fit[static_cast<size_t>(i)].column, p.row, by_row);
+        const double fit_across =
+            pipeline::DistanceAcrossLine(fit[static_cast<size_t>(i)].column, p.row, by_row);
         const double result_across = pipeline::DistanceAcrossLine(p.column, p.row, by_row);
         // Signed error along the row against the nearest crossing, for the correlation.
         double best = 1e9;
@@ -148,7 +149,8 @@ SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps, 
         const std::string part = on_object[p.row] ? "object" : "table";
         std::vector<std::string> classes = {"all", part};
         const double slope =
-            (i > 0 && own.points[i - 1].row + 1 == q.row ? std::abs(q.column - own.points[i - 1].column) : 0.0);
+            (i > 0 && own.points[i - 1].row + 1 == q.row ? std::abs(q.column - own.points[i - 1].column)
+                                                         : 0.0);
         const bool steep = length[static_cast<size_t>(i)] == 1 || slope > 1.0;
         bool attribute = false;
         auto add = [&](bool is, const char* name) {
@@ -193,7 +195,8 @@ SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps, 
           const int j = i + lag;
           if (!plain[static_cast<size_t>(j)] || own.points[j].row != own.points[i].row + lag) continue;
           if (length[static_cast<size_t>(i)] == 1) continue;
-          out.lag_sum[static_cast<size_t>(lag)] += own_error[static_cast<size_t>(i)] * own_error[static_cast<size_t>(j)];
+          out.lag_sum[static_cast<size_t>(lag)] +=
+              own_error[static_cast<size_t>(i)] * own_error[static_cast<size_t>(j)];
           out.lag_count[static_cast<size_t>(lag)] += 1;
         }
       }
@@ -203,12 +206,13 @@ SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps, 
 }
 
 void PrintSet(const char* file, double f_number, int steps, const SetErrors& s) {
-  std::printf("%s f/%.1f, %d steps x 2 lasers: across the line, rms (within 2 px) / over 1 px, of the row's own "
-              "estimate -> the smoothing's fit -> the result\n",
-              file, f_number, steps);
+  std::printf(
+      "%s f/%.1f, %d steps x 2 lasers: across the line, rms (within 2 px) / over 1 px, of the row's own "
+      "estimate -> the smoothing's fit -> the result\n",
+      file, f_number, steps);
   for (const auto& [name, e] : s.by_class) {
-    std::printf("  %-48s %6d  %.3f / %5.2f %%  ->  %.3f / %5.2f %%  ->  %.3f / %5.2f %%\n", name.c_str(), e.own.n,
-                e.own.rms(), e.own.over_percent(), e.fit.rms(), e.fit.over_percent(), e.result.rms(),
+    std::printf("  %-48s %6d  %.3f / %5.2f %%  ->  %.3f / %5.2f %%  ->  %.3f / %5.2f %%\n", name.c_str(),
+                e.own.n, e.own.rms(), e.own.over_percent(), e.fit.rms(), e.fit.over_percent(), e.result.rms(),
                 e.result.over_percent());
   }
   std::printf("  own error's correlation along the line (plain points), lag 0..16 rows:");

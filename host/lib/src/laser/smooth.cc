@@ -132,8 +132,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     auto explained = [&](int j) {
       const double x = j - i;
       const double slope = first.b + 2.0 * x * first.q;
-      return j == i ||
-             std::abs(raw[j] - (first.a + x * (first.b + x * first.q))) <= outlier_px * std::sqrt(1.0 + slope * slope);
+      return j == i || std::abs(raw[j] - (first.a + x * (first.b + x * first.q))) <=
+                           outlier_px * std::sqrt(1.0 + slope * slope);
     };
     bool all = true;
     for (int j = lo; j <= hi && all; ++j) all = explained(j);
@@ -177,7 +177,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
     const int len = end - start + 1;
     if (len < 2) return;
     bool steep = false;
-    for (int i = start; i < end && !steep && steep_step_change_px > 0.0; ++i) steep = std::abs(raw[i + 1] - raw[i]) > max_jump_px;
+    for (int i = start; i < end && !steep && steep_step_change_px > 0.0; ++i)
+      steep = std::abs(raw[i + 1] - raw[i]) > max_jump_px;
     if (steep) {
       // Its runs of kKeepRows or more rows without a steep step are smoothed as stretches of their own
       // (as without the joining); the other points by the fit over the joined stretch.
