@@ -606,6 +606,9 @@ TEST(SmoothAlongLineTest, ParabolaFollowsACurvedLineAndOptionsAreChecked) {
   options = ExtractOptions();
   options.smooth_outlier_px = std::nan("");
   EXPECT_NE(options.Check().message().find("smooth_outlier_px"), std::string::npos);
+  options = ExtractOptions();
+  options.smooth_steep_step_px = -1.0;
+  EXPECT_NE(options.Check().message().find("smooth_steep_step_px"), std::string::npos);
 }
 
 // The row scan finds the runs from 16-pixel block masks; widths that are not a multiple of 16 end with an

@@ -155,6 +155,17 @@
 // objects. (The parabola rows were measured before a fix to the parabola's curvature term, which only
 // the outlier test of the second fit reads; SmoothAlongLineTest.MatchesTheDefiningWeightedFit checks
 // every order against a direct weighted least-squares fit.)
+// Steep steps (ExtractOptions::smooth_steep_step_px; issue 15, eleventh session). A stretch ends at a
+// column step over smooth_max_jump_px, so a steep line (the table top's, over 1.5 px per row) was not
+// smoothed at all: on the webcam sets 2,258 of the glossy table's 2,531 points (SmoothingClassesTest).
+// On frames whose noise was measured on lit pixels the stretch goes on where the step is within
+// smooth_steep_step_px of the previous one (the slope continues; a depth edge is a sudden jump), with
+// the outlier test across the line (smooth.cc). Webcam sets, 8 steps x 2 lasers, f/4, RMS across (bench
+// accuracy), main -> 1.5 / 3 px: glossy table 0.317 -> 0.262 / 0.249, object 0.363 -> 0.371 / 0.365
+// (with runs of 6+ rows without a steep step kept as their own stretches; 0.373 without), textured table
+// 0.300 -> 0.245 / 0.231, object 0.342 -> 0.340 / 0.343. A parabola for the joined fits: glossy object
+// 0.348 but tables 0.282 / 0.264; a window shortened by the slope: no gain. Not on the machine-vision
+// preset (the joining there cost Spot 0.208 -> 0.269, smooth.cc).
 //
 // Where the code is: extract_steps.h names the steps and the file of each (noise, row pass, candidates,
 // point, smoothing); kernels.h the instruction-set paths of their inner loops, each in its own file
@@ -242,6 +253,8 @@ Status ExtractOptions::Check() const {
     return bad("smooth_max_jump_px", "must be > 0");
   if (!(smooth_outlier_px > 0.0 && std::isfinite(smooth_outlier_px)))
     return bad("smooth_outlier_px", "must be > 0");
+  if (!(smooth_steep_step_px >= 0.0 && std::isfinite(smooth_steep_step_px)))
+    return bad("smooth_steep_step_px", "must be >= 0");
   return Status::Ok();
 }
 
@@ -471,7 +484,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     row_columns_.resize(n);
     for (size_t i = 0; i < n; ++i) row_columns_[i] = points[i].column;
     SmoothAlongLine(&points, o.smooth_half_rows, o.smooth_order, o.smooth_max_jump_px, o.smooth_outlier_px,
-                    &raw_columns_);
+                    &raw_columns_, stats.noise_on_lit ? o.smooth_steep_step_px : 0.0);
     detail::LimitSmoothing(row_columns_, &points);
   }
   for (LinePoint& p : line->points) p.flags &= static_cast<uint8_t>(~detail::kFlagLopsided);

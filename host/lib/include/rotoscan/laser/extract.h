@@ -122,6 +122,10 @@ struct ExtractOptions {
   int smooth_order = 1;  // of the local fit: 0 mean, 1 straight line, 2 parabola
   double smooth_max_jump_px = 1.5;
   double smooth_outlier_px = 0.5;
+  // On frames whose noise was measured on lit pixels (LineStats::noise_on_lit: the webcam's), the
+  // smoothing also joins rows whose column step exceeds smooth_max_jump_px but is within this of the
+  // previous row's step (a steep line continuing its slope; extract.cc, "Along-line smoothing"). 0: off.
+  double smooth_steep_step_px = 3.0;
   // A steep line's centre (over kSteepSlope columns per row: the table top's line, a grazing surface)
   // measured across the line from the pixels of neighbouring rows, not along its row (steep.cc); only on
   // frames whose noise was measured on lit pixels (LineStats::noise_on_lit).
@@ -177,8 +181,10 @@ class LineExtractor {
 
 // The along-line smoothing of ExtractOptions (smooth_*), applied in place to points ordered by row; exposed
 // for tests. `scratch` is reused between calls. Points keep their row, peak, width, quality and flags.
+// steep_step_change_px > 0 also joins rows whose column step is larger than max_jump_px but within
+// steep_step_change_px of the previous step (a steep line continuing its slope; extract.cc).
 void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, double max_jump_px,
-                     double outlier_px, std::vector<float>* scratch);
+                     double outlier_px, std::vector<float>* scratch, double steep_step_change_px = 0.0);
 
 // One-shot convenience.
 Result<Line> ExtractLine(const cv::Mat& on, const cv::Mat& off, const ExtractOptions& options = {});
