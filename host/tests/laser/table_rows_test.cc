@@ -8,7 +8,9 @@
 // sigma (LineStats::noise_dn, measured on its lit pixels). Printed per set and part (object / table): lit
 // rows not found, by that signal (< 2, 2-4, 4-6, >= 6 sigma); and for the table, where the missed rows are
 // (in a gap between found rows of its line, or beyond the found stretch's end).
+// The rows over 1 px where the other part's line begins are counted by their candidates (RowCandidates).
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -61,6 +63,15 @@ struct PartRows {
   // steep step) was within 1 px, and whether the noise-free render's own centre of mass in the row (over
   // the clean difference >= 2 DN within 12 px of the truth) is over 1 px from the truth too.
   int end_last = 0, end_second = 0, end_further = 0, end_raw_within = 0, end_clean_over = 0;
+  // The rows over 1 px within 4 rows of the other part's (the junction, issue 15) by their candidates
+  // (steps 1-3 on the noisy frames): one candidate only (the two lines' light in one run, or only one line
+  // lit: no choice to make), or several with one whose extent's middle is within 2 px of the truth (the
+  // choice could have found the line), or several with none that near. junction_merged: of the
+  // one-candidate rows, those whose candidate is two runs merged (FindCandidates).
+  int junction_rows = 0, junction_one = 0, junction_merged = 0, junction_other_near = 0, junction_none_near = 0;
+  // And those whose uncertainty is under their error along the row (to the nearest true crossing), and
+  // those of quality under 0.05.
+  int junction_unc_under = 0, junction_low_quality = 0;
   std::vector<double> end_clean_err, end_point_err;  // signed along the row, truth to clean / point
   // The noise-free render's lines, extracted with and without RecentreLineEnds: the rows within 4 rows of
   // the truth's end found, and over 1 px across, and their sum of squares across (within 3 px).
@@ -132,6 +143,40 @@ void PrintProfile(const char* what, const cv::Mat& on, const cv::Mat& off, int r
     std::printf(" %3d", static_cast<int>(on.at<uint8_t>(row, c)) - off.at<uint8_t>(row, c));
   }
   std::printf("  (columns %d..%d)\n", c0 - 10, c0 + 10);
+}
+
+// The row's candidates (steps 1-3 on the noisy frames at the frame's threshold), printed with `print`: extent,
+// peak, width, and the nearest true crossing's distance from the extent's middle (issue 15: which line the
+// row chose). Returns their number; *near: whether one's extent's middle is within 2 px of a true crossing;
+// *merged: whether the first is two runs merged (its width_den is 1: measured ones have 2 d_l d_r >= 2).
+int RowCandidates(const cv::Mat& on, const cv::Mat& off, int row, int threshold, const std::vector<double>& truth,
+                  bool print, bool* near, bool* merged) {
+  const int cols = on.cols;
+  std::vector<uint8_t> d(static_cast<size_t>(cols + 2 * detail::kPad), 0);
+  std::vector<int> starts(static_cast<size_t>(cols / 16 + 3));
+  std::vector<uint64_t> masks(starts.size());
+  const uint8_t* a = on.ptr<uint8_t>(row);
+  const uint8_t* b = off.ptr<uint8_t>(row);
+  const int blocks =
+      detail::RowPass(a, b, cols, threshold, false, d.data() + detail::kPad, starts.data(), masks.data());
+  std::array<detail::Candidate, 32> candidates;
+  const int count = blocks == 0 ? 0
+                                : detail::FindCandidates(a, b, d.data() + detail::kPad, cols, threshold,
+                                                         ExtractOptions{}.off_saturation_dn, false, starts.data(),
+                                                         masks.data(), blocks, candidates.data(), 32);
+  *near = false;
+  *merged = count > 0 && candidates[0].width_den == 1;
+  if (print) std::printf("      candidates (threshold %d):", threshold);
+  for (int k = 0; k < count; ++k) {
+    const detail::Candidate& c = candidates[static_cast<size_t>(k)];
+    double nearest = 1e9;
+    for (double t : truth) nearest = std::min(nearest, std::abs(0.5 * (c.first + c.last) - t));
+    *near = *near || nearest <= 2.0;
+    if (print)
+      std::printf(" [%d..%d peak %d width %.1f, %.1f px from truth]", c.first, c.last, c.peak, c.Width(), nearest);
+  }
+  if (print) std::printf("\n");
+  return count;
 }
 
 SetRows MeasureSet(const std::string& scene_file, int steps) {
@@ -329,6 +374,19 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
               beside = beside || (nearest > 24 + 24 * std::abs(dr) && nearest < 48 + 24 * std::abs(dr));
             }
           }
+          if (!filled && junction) {
+            bool near = false, merged = false;
+            const int n = RowCandidates(noisy_on, noisy_off, row, static_cast<int>(line.stats.threshold_dn), columns,
+                                        false, &near, &merged);
+            ++part.junction_rows;
+            part.junction_merged += n == 1 && merged;
+            const LinePoint* q = line_of_row[row];
+            double error = 1e9;
+            for (double c : columns) error = std::min(error, std::abs(c - q->column));
+            part.junction_unc_under += q->uncertainty_px < error;
+            part.junction_low_quality += q->quality < 0.05;
+            ++(n <= 1 ? part.junction_one : near ? part.junction_other_near : part.junction_none_near);
+          }
           if (!filled && (end || junction)) {
             // Rows of the same part to the stretch's end, up and down (the nearer one).
             int to_end = 99;
@@ -372,6 +430,9 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
               std::printf("\n");
               PrintProfile("noisy", noisy_on, noisy_off, row, nearest);
               PrintProfile("clean", clean_on, clean_off, row, nearest);
+              bool near = false, merged = false;
+              RowCandidates(noisy_on, noisy_off, row, static_cast<int>(line.stats.threshold_dn), columns, true, &near,
+                            &merged);
             }
           }
           if (filled) {
@@ -484,6 +545,11 @@ void Print(const char* name, const PartRows& p) {
               "own estimate within 1 px %d; the noise-free render's centre over 1 px from the truth %d; median "
               "|error| along the row: point %.2f px, noise-free centre %.2f px\n",
               p.end_last, p.end_second, p.end_further, p.end_raw_within, p.end_clean_over, Median(pe), Median(ce));
+  std::printf("         over 1 px within 4 rows of the other part's %d: one candidate in the row %d (two runs merged "
+              "%d); several, one within 2 px of the truth %d; several, none within 2 px %d; uncertainty under the "
+              "error along the row %d; quality under 0.05 %d\n",
+              p.junction_rows, p.junction_one, p.junction_merged, p.junction_other_near, p.junction_none_near,
+              p.junction_unc_under, p.junction_low_quality);
   std::printf(
       "         steep mid-line rows over 1 px (2 px per row or more) %d: the noise-free render's centre in "
       "the row over 1 px %d, its extracted point over 1 px %d; the row's own estimate within 1 px %d; "
