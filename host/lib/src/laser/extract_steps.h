@@ -310,7 +310,8 @@ double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t*
 // The same where the laser-on row a saturates (at the candidate's peak) and the laser-off row's edge is
 // sharp: the centre of mass of d / b clipped at the lowest ratio that the saturated pixels are known to
 // reach, (255 - b) / b (point.cc); negative when it does not apply or fails.
-double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last);
+double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first,
+                           int last);
 
 // Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
 // of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test

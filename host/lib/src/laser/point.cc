@@ -210,7 +210,8 @@ double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t*
 // division: the textured webcam set (8 steps x 2 lasers, f/4, per row without smoothing), its 980 rows
 // saturated at a divided albedo edge: 101 over 1 px across, RMS 0.596 px, against 60 and 0.506 px for
 // AlbedoNormalisedCentre's blurred rule (the ratio here then by the row blurred 1 px to the power 0.9).
-double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last) {
+double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first,
+                           int last) {
   const int width = last - first + 1;
   const int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
   int high = 0, low = 255, steepest = 0;
