@@ -85,7 +85,9 @@ constexpr int kAlbedoSharpEdgeNum = 4, kAlbedoSharpEdgeDen = 5;
 constexpr int kAlbedoSharpReach = 4;
 // Nor where the laser-on row saturates within the window: the difference there is clipped, not the
 // profile times the albedo, and its division by the row itself pulls the centre to the dark side. Such
-// windows are divided by the blurred row (POV-Ray's bright checker at 1280x960, the white cells
+// windows are measured by the ratio clipped at the level the saturated pixels are known to reach where the
+// edge is sharp (ClippedAlbedoCentre, point.cc: our renderer's checker cylinder at 1280x960 12.8 -> 0 % of
+// rows over 1 px), else divided by the blurred row (POV-Ray's bright checker at 1280x960, the white cells
 // saturated: rows over 1 px 19.3 % divided by the row itself, 17.1 % so; 640x480 8.5 / 9.6 % but RMS
 // 0.285 / 0.227 px; our unblurred renderer's checker cylinder at 1280x960: 7.7 / 15.5 %; all measured with
 // a one-pixel sharpness test and the blurred rule's window, before the two settings above).
@@ -304,6 +306,12 @@ bool AlbedoEdgeInside(const uint8_t* b, int first, int last);
 // [first, last] widened by its width each side (kAlbedoSharpReach widths where sharp); negative when it
 // fails.
 double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last);
+
+// The same where the laser-on row a saturates (at the candidate's peak) and the laser-off row's edge is
+// sharp: the centre of mass of d / b clipped at the lowest ratio that the saturated pixels are known to
+// reach, (255 - b) / b (point.cc); negative when it does not apply or fails.
+double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first,
+                           int last);
 
 // Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
 // of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test

@@ -190,6 +190,74 @@ double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t*
   return lo + moment / sum;
 }
 
+// A line saturated in the laser-on frame over an albedo edge (issue 15; design notes "Albedo inside the
+// line"). In an unblurred frame a pixel's laser-on value is a = min(255, rho (A + L)) and its laser-off value
+// b = rho A (rho the albedo, A the ambient light, L the laser's profile, all up to the sensor's gain: the
+// paper's differential imaging, section III; it numbers no equation for the centre). Where a < 255 the ratio
+// (a - b) / b = L / A is the profile whatever the albedo; where a = 255 it is only known to be at least
+// (255 - b) / b, a bound that is higher on a dark cell than on a white one, so the difference (notch-filled
+// to its plateau) divided by the albedo is not the profile there, and its centre of mass was off by up to
+// 1.5 px (our renderer's checker cylinder at 1280x960: 12.8 % of the rows over 1 px, every one of them
+// saturated). The ratio is known everywhere up to the lowest of those bounds over the saturated pixels, T:
+// min((a - b) / b, T) = min(L / A, T) at every pixel (a saturated one is T). For a profile symmetric about
+// its centre, min(L / A, T) is symmetric about the same centre whatever T is, and its centre of mass over
+// the run above 0.15 T (kCenterOfMass's level) is the line's centre. Measured in README "Frames from
+// POV-Ray" and SaturatedEdgeTest.
+// Only where the laser-off row's edge is sharp (kAlbedoSharpEdgeNum, over the extent widened by its width
+// each side, as AlbedoNormalisedCentre tests it): only there is the difference the profile times the albedo
+// pixel by pixel. Where the frame is blurred (a webcam: demosaicing, 4:2:0 JPEG, after the sensor clipped)
+// the clipped 255 is spread into the dark cell's pixels and this estimate was worse than the blurred
+// division: the textured webcam set (8 steps x 2 lasers, f/4, per row without smoothing), its 980 rows
+// saturated at a divided albedo edge: 101 over 1 px across, RMS 0.596 px, against 60 and 0.506 px for
+// AlbedoNormalisedCentre's blurred rule (the ratio here then by the row blurred 1 px to the power 0.9).
+double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first,
+                           int last) {
+  const int width = last - first + 1;
+  const int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
+  int high = 0, low = 255, steepest = 0;
+  for (int i = lo; i <= hi; ++i) {
+    high = std::max(high, int{b[i]});
+    low = std::min(low, int{b[i]});
+    if (i > lo + 1) steepest = std::max(steepest, std::abs(int{b[i]} - int{b[i - 2]}));
+  }
+  if (kAlbedoSharpEdgeDen * steepest < kAlbedoSharpEdgeNum * (high - low)) return -1.0;
+  const double floor_dn = std::max(3.0, 0.05 * high);
+  auto albedo = [&](int i) { return std::max(static_cast<double>(b[i]), floor_dn); };
+  // The saturated run (the first and last laser-on pixel at 255 in the extent) and the clip level T: the
+  // lowest ratio that any of its pixels is known to reach, (255 - b) / b.
+  int run_first = -1, run_last = -1;
+  double clip = 0;
+  for (int i = first; i <= last; ++i) {
+    if (a[i] != 255 || 255 - b[i] < kAlbedoStepDn) continue;
+    const double bound = (255 - b[i]) / albedo(i);
+    clip = run_first < 0 ? bound : std::min(clip, bound);
+    if (run_first < 0) run_first = i;
+    run_last = i;
+  }
+  if (run_first < 0) return -1.0;
+  // The ratio clipped at T: T wherever the laser-on row is at 255, and wherever the ratio exceeds T.
+  auto clipped = [&](int i) { return a[i] == 255 ? clip : std::min(clip, d[i] / albedo(i)); };
+  // Its centre of mass over the run above kComLevelNum / kComScale of T, as kCenterOfMass's, the run
+  // followed out from the saturated pixels (at most kAlbedoMaxWindow / 2 each way).
+  const double level = kComLevelNum * clip / kComScale;
+  const int reach = kAlbedoMaxWindow / 2;
+  double sum = 0, moment = 0;
+  auto add = [&](int i) {
+    const double w = clipped(i) - level;
+    if (w <= 0) return false;
+    sum += w;
+    moment += w * i;
+    return true;
+  };
+  for (int i = run_first; i <= run_last; ++i) add(i);
+  for (int i = run_first - 1; i >= std::max(0, run_first - reach) && add(i); --i) {
+  }
+  for (int i = run_last + 1; i <= std::min(cols - 1, run_last + reach) && add(i); ++i) {
+  }
+  if (!(sum > 0)) return -1.0;
+  return moment / sum;
+}
+
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
                   const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column_out) {
   double column;
@@ -206,7 +274,11 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
     // profile times the albedo, which pulls the centre of mass towards the brighter side by up to a
     // quarter of the width. The centre of the profile divided by the albedo as the laser-off frame
     // shows it, taken through the same optics (design notes, "Albedo inside the line").
-    const double normalised = AlbedoNormalisedCentre(a, d, b, cols, c.first, c.last);
+    // Where the laser-on row saturates at the peak and the edge is sharp, the ratio clipped at its known
+    // level (ClippedAlbedoCentre); else the division.
+    double normalised = -1.0;
+    if (a[c.peak_pos] == 255) normalised = ClippedAlbedoCentre(a, d, b, cols, c.first, c.last);
+    if (normalised < 0) normalised = AlbedoNormalisedCentre(a, d, b, cols, c.first, c.last);
     if (normalised >= 0) {
       column = normalised;
       albedo_edge = true;
