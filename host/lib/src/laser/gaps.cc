@@ -171,6 +171,25 @@ struct Curve {
 // 0.8: 95 of 98 (8 steps: 278 of 314); 1.0 (chosen): 98 of 98 (8 steps: 290 of 313).
 // Their quality (kGapQuality / (1 + u^2), u ~ 2 L ~ 18 px) is the lowest of any point's: a filter on
 // quality drops them first.
+// Twelfth session: the line refined, and each row's own evidence. The best line of the search is on a grid
+// (its angle step moves the far end by half a half width) and its box filter is flat across the line: as
+// placed, 83 of the 317 filled rows within 3 px were over 1 px across (FaintStretchFoundPastItsEnd, 8 steps,
+// both f-numbers). Now the angles within one step (kEndRefineSteps a step) and offsets within a half width
+// are scored by a Gaussian matched filter across (its sigma from the half width as a half maximum; zero-mean
+// over +-3 sigma), on the pixels of the rows to fill binned by their distance across (kEndBinPx), and a row
+// is placed only where its own pixels reach kEndRowZ (2) under the same filter (2.5: f/4 fewer rows over
+// 1 px but ~20 fewer found; 1.5: the reverse). As placed: 26 of 266 over 1 px, RMS 0.62 px. Wider angle
+// ranges (3 or 6 steps) were worse (the steeper lines take the stretch's own glow at the corner). After the
+// steep step and the smoothing, which move a point by up to its uncertainty or 0.3 of its row width (here
+// ~50 px: 2 half widths along a line at ~9 px per row), 47 of 262 are over 1 px (64 of 313 before): those
+// later steps, not the end step's placing, now make most of its rows over 1 px (run after them, in a trial
+// of extract.cc's order not kept: textured f/4 over 1 px with the end step 1.58 -> 1.68 % in the test's
+// count, against 1.92 %). `bench accuracy --extend-line-ends` (8 steps, all lit rows, across), main a85a763
+// -> now: textured f/4 found 97.35 -> 97.29 %, over 1 px 1.808 -> 1.676 %; f/2.4 97.03 -> 97.10 %, 2.167 ->
+// 2.047 %; the default's 1.437 / 1.748 %. Cost, laser_bench BM_ExtractWebcam/5 (the end step on) against
+// /1: ~+55 us on main, ~+75 us now (the refinement ~20 us of a frame, load 4-7: noisy). False rows on
+// laser-off pairs (GapFillTest.NoEndRunsOnLaserOffPairs) at z 4 / 5 / 6 / 7 / 8: 2 / 0 / 0 / 0 / 0 (were
+// 16 / 0 / 0 / 0 / 0).
 constexpr int kEndMaxRows = 16;
 constexpr int kEndMinRows = 4;
 constexpr int kEndStretchRows = 16;
@@ -181,6 +200,11 @@ constexpr double kEndMaxSlope = 12.0;
 constexpr double kEndAngleStep = 0.5;
 constexpr int kEndAnchors = 3;
 constexpr double kEndAcrossSd = 1.0;
+constexpr int kEndRefineSteps = 2;
+constexpr double kEndBinPx = 0.2;
+constexpr double kEndRowZ = 2.0;
+// A Gaussian's full width at half maximum over its sigma: the matched filter's sigma from the line's width.
+constexpr double kFwhmPerSigma = 2.3548;
 
 // The signed difference's prefix sums over a block of rows, each row over its own columns (integers).
 struct RowPrefix {
@@ -281,6 +305,9 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
   std::vector<LinePoint> filled;
   RowPrefix prefix;
   std::vector<float> peaks, widths;
+  std::vector<double> gauss;
+  std::vector<long> bin_sum;
+  std::vector<int> bin_count;
   End end;
   for (int e = 0; e < n; ++e) {
     for (int dir : {-1, 1}) {
@@ -423,13 +450,111 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
           z_of(all[0] - first_half[0], all[1] - first_half[1], all[2] - first_half[2], all_count[0] - first_count[0],
                all_count[1] - first_count[1], all_count[2] - first_count[2]) < kGapHalfZ)
         continue;
+      // The line refined (twelfth session): the angles within one step of the best (kEndRefineSteps a
+      // step) and offsets across within a half width, each scored by a Gaussian matched filter across the
+      // line (zero-mean over +-3 sigma) on the pixels of the rows to fill, binned by their distance across
+      // (kEndBinPx; the Gaussian tabulated per bin).
+      const double sigma_w = std::max(1.0, 2.0 * half / kFwhmPerSigma);
+      const int half_bins = static_cast<int>(std::floor(half / kEndBinPx)),
+                g_bins = static_cast<int>(std::ceil(3.0 * sigma_w / kEndBinPx));
+      const int centre_bin = half_bins + g_bins + 1, bins = 2 * centre_bin + 1;
+      gauss.resize(static_cast<size_t>(2 * g_bins + 1));
+      for (int m = -g_bins; m <= g_bins; ++m) {
+        const double x = m * kEndBinPx;
+        gauss[static_cast<size_t>(m + g_bins)] = std::exp(-0.5 * x * x / (sigma_w * sigma_w));
+      }
+      bin_sum.resize(static_cast<size_t>(bins));
+      bin_count.resize(static_cast<size_t>(bins));
+      const double t_best = std::atan(std::abs(best.slope)), sign = best.slope < 0 ? -1.0 : 1.0;
+      const double angle_step = kEndAngleStep * half / (span * std::sqrt(1.0 + best.slope * best.slope));
+      double best_score = -1e300, best_s = best.slope, best_offset = 0;
+      for (int q = -kEndRefineSteps; q <= kEndRefineSteps; ++q) {
+        const double s = sign * std::tan(t_best + q * angle_step / kEndRefineSteps);
+        const double length = std::sqrt(1.0 + s * s);
+        std::fill(bin_sum.begin(), bin_sum.end(), 0L);
+        std::fill(bin_count.begin(), bin_count.end(), 0);
+        // Each row's columns: those within half + 3 sigma across of the line (the offsets' Gaussian windows)
+        // and at least d0 along from the anchor (the stretch's own light left out: dir ((c - ca) s + (rr -
+        // ra)) >= d0 L, a bound on the column as dir s != 0).
+        const double reach = (half_bins + g_bins + 1) * kEndBinPx;
+        const double per_column = 1.0 / (length * kEndBinPx);  // bins per column
+        for (int j = first_fill; j <= best.rows; ++j) {
+          const int rr = ra + dir * j;
+          if (rr < 0 || rr >= rows) continue;
+          const double cl = best_ca + s * (rr - ra);
+          double lo = cl - reach * length, hi = cl + reach * length;
+          const double bound = best_ca + (d0 * length - dir * (rr - ra)) / (dir * s);
+          if (dir * s > 0)
+            lo = std::max(lo, bound);
+          else
+            hi = std::min(hi, bound);
+          if (!(hi >= lo)) continue;
+          const int c_first = ClampToIndex(std::ceil(lo), cols), c_last = ClampToIndex(std::floor(hi), cols);
+          const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
+          const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
+          double t = centre_bin + 0.5 + (c_first - cl) * per_column;
+          for (int c = c_first; c <= c_last; ++c, t += per_column) {
+            const int k = static_cast<int>(std::floor(t));
+            if (k < 0 || k >= bins) continue;
+            bin_sum[static_cast<size_t>(k)] += SignedDifference(a[c * step], b[c * step]);
+            ++bin_count[static_cast<size_t>(k)];
+          }
+        }
+        for (int i = -half_bins; i <= half_bins; ++i) {
+          double sg = 0, sgd = 0, sd = 0;
+          long n_px = 0;
+          for (int m = -g_bins; m <= g_bins; ++m) {
+            const size_t k = static_cast<size_t>(centre_bin + i + m);
+            const double g = gauss[static_cast<size_t>(m + g_bins)];
+            sg += g * bin_count[k];
+            sgd += g * static_cast<double>(bin_sum[k]);
+            sd += static_cast<double>(bin_sum[k]);
+            n_px += bin_count[k];
+          }
+          if (n_px < 1) continue;
+          const double score = sgd - sg / static_cast<double>(n_px) * sd;
+          if (score > best_score) {
+            best_score = score;
+            best_s = s;
+            best_offset = i * kEndBinPx;
+          }
+        }
+      }
+      best.slope = best_s;
+      const double ca = best_ca + best_offset * std::sqrt(1.0 + best_s * best_s);
       const double length = std::sqrt(1.0 + best.slope * best.slope);
       const double uncertainty = std::max(kGapMinUncertaintyPx, 2.0 * length * kEndAcrossSd);
-      const double ca = best_ca;
       for (int j = first_fill; j <= best.rows; ++j) {
         const int rr = ra + dir * j;
         const double c = ca + best.slope * (rr - ra);
         if (!(c >= 0 && c <= cols - 1)) continue;
+        {
+          // The row's own evidence: the same Gaussian matched filter on its pixels alone, at least
+          // kEndRowZ times its noise (the row holds light of the line where it is placed).
+          const double reach = g_bins * kEndBinPx;
+          const int c_first = ClampToIndex(std::ceil(c - reach * length), cols);
+          const int c_last = ClampToIndex(std::floor(c + reach * length), cols);
+          const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
+          const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
+          double sg = 0, sgg = 0, sgd = 0, sd = 0;
+          int n_px = 0;
+          for (int cc = c_first; cc <= c_last; ++cc) {
+            const int m = static_cast<int>(std::lround((cc - c) / (length * kEndBinPx)));
+            if (m < -g_bins || m > g_bins) continue;
+            const double g = gauss[static_cast<size_t>(m + g_bins)];
+            const int d = SignedDifference(a[cc * step], b[cc * step]);
+            sg += g;
+            sgg += g * g;
+            sgd += g * d;
+            sd += d;
+            ++n_px;
+          }
+          if (n_px < 3) continue;
+          const double var_g = sgg - sg * sg / n_px;
+          if (var_g <= 0) continue;
+          const double z_row = (sgd - sg / n_px * sd) / (noise_dn * std::sqrt(kGapCorrelation * var_g));
+          if (z_row < kEndRowZ) continue;
+        }
         LinePoint& q = filled.emplace_back();
         q.row = rr;
         q.column = static_cast<float>(c);
