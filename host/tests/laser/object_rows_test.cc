@@ -1054,14 +1054,15 @@ TEST(ObjectRowsTest, TexturedMissedRowsByPlace) {
       added_over += end_rows[b][1];
     }
     std::printf("\n");
-    // Measured, 3 steps (f/4 / f/2.4): the gap step leaves 16 / 21 of the 203 / 243 rows in gaps that the row
-    // pass misses (main a85a763, whose gap step skipped a gap with one point on a side within 12 rows: 27 /
-    // 33); the end step adds 70 / 50 rows, 14 / 11 over 1 px (main's: 83 / 54, 19 / 16). 8 steps: README.
+    // Measured, 3 steps (f/4 / f/2.4): the gap step leaves 7 / 18 of the 203 / 243 rows in gaps that the row
+    // pass misses (main a85a763, whose gap step skipped a gap with one point on a side within 12 rows, or
+    // whose stretch failed the residual test over 12 rows: 27 / 33; 8 steps 86 / 117 of 628 / 632, now
+    // 46 / 45); the end step adds 70 / 50 rows, 14 / 11 over 1 px (main's: 83 / 54, 19 / 16). README.
     const int gap_without = missed[0].by_place[0][0] + missed[0].by_place[0][1];
     const int gap_default = missed[1].by_place[0][0] + missed[1].by_place[0][1];
     EXPECT_GT(gap_without, 100) << "f/"
                                 << f_number;  // the row pass misses rows in gaps (else this tests nothing)
-    EXPECT_LE(gap_default, gap_without / 8) << "f/" << f_number;
+    EXPECT_LE(gap_default, gap_without / 10) << "f/" << f_number;
     EXPECT_GT(added, 0) << "f/" << f_number;
     EXPECT_LE(added_over, added / 4) << "f/" << f_number;
   }
