@@ -196,10 +196,11 @@ struct Curve {
 // of extract.cc's order not kept: textured f/4 over 1 px with the end step 1.58 -> 1.68 % in the test's
 // count, against 1.92 %). `bench accuracy --extend-line-ends` (8 steps, all lit rows, across), main a85a763
 // -> now: textured f/4 found 97.35 -> 97.29 %, over 1 px 1.808 -> 1.676 %; f/2.4 97.03 -> 97.10 %, 2.167 ->
-// 2.047 %; the default's 1.437 / 1.748 %. Cost, laser_bench BM_ExtractWebcam/5 (the end step on) against
-// /1: ~+55 us on main, ~+75 us now (the refinement ~20 us of a frame, load 4-7: noisy). False rows on
-// laser-off pairs (GapFillTest.NoEndRunsOnLaserOffPairs) at z 4 / 5 / 6 / 7 / 8: 2 / 0 / 0 / 0 / 0 (were
-// 16 / 0 / 0 / 0 / 0).
+// 2.047 %; the default's 1.437 / 1.748 % (with the gap step's refit over the nearest points, above:
+// 97.53 %, 1.664 % and 97.96 %, 1.988 %; the default's 1.425 / 1.688 %). Cost, laser_bench BM_ExtractWebcam/5
+// (the end step on) against /1: ~+55 us on main, ~+75 us now (the refinement ~20 us of a frame, load 4-7:
+// noisy). False rows on laser-off pairs (GapFillTest.NoEndRunsOnLaserOffPairs) at z 4 / 5 / 6 / 7 / 8: 2 / 0
+// / 0 / 0 / 0 (were 16 / 0 / 0 / 0 / 0).
 constexpr int kEndMaxRows = 16;
 constexpr int kEndMinRows = 4;
 constexpr int kEndStretchRows = 16;
