@@ -192,8 +192,8 @@ BENCHMARK(BM_ExtractTriangulate)
 
 // Typical frames (WebcamFrames): the default extractor, smoothing on (1) or off (0) or on without the steep
 // step (2) or without the line-end step (3, ends.cc), or the row loop alone (4: the noise sample, the row
-// pass, the rows' points and their scores; no gap, steep or line-end step, no smoothing), and
-// triangulation.
+// pass, the rows' points and their scores; no gap, steep or line-end step, no smoothing), or the default with
+// the gap step's opt-in end part (5, ExtractOptions::extend_line_ends), and triangulation.
 void BM_ExtractWebcam(benchmark::State& state) {
   const Frames& f = WebcamFrames();
   rotoscan::laser::ExtractOptions options;
@@ -201,6 +201,7 @@ void BM_ExtractWebcam(benchmark::State& state) {
   if (state.range(0) == 2 || state.range(0) == 4) options.steep_across = false;
   if (state.range(0) == 3 || state.range(0) == 4) options.line_ends = false;
   if (state.range(0) == 4) options.fill_gaps = false;
+  if (state.range(0) == 5) options.extend_line_ends = true;
   rotoscan::laser::LineExtractor extractor(options);
   static const rotoscan::laser::Triangulator triangulator(Camera());
   rotoscan::laser::Line line;
@@ -219,7 +220,7 @@ void BM_ExtractWebcam(benchmark::State& state) {
   state.counters["points_per_frame"] =
       static_cast<double>(total_points) / std::max<int64_t>(1, state.iterations());
 }
-BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Arg(3)->Arg(4)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_ExtractWebcam)->Arg(1)->Arg(0)->Arg(2)->Arg(3)->Arg(4)->Arg(5)->Unit(benchmark::kMicrosecond);
 
 // The noise sample alone (noise.cc, the first thing each frame does), from memory: on the worst-case
 // frames (0; their background is lit everywhere) and on the typical frames (1).
