@@ -127,7 +127,8 @@ struct ExtractOptions {
   // previous row's step (a steep line continuing its slope; extract.cc, "Along-line smoothing"). 0: off.
   double smooth_steep_step_px = 3.0;
   // The straight fit (smooth_order 1) less its bias on a curved line, from the curvature that the fit's
-  // slope shows over +-smooth_half_rows / 2 rows (extract.cc, "Along-line smoothing"; issue 15).
+  // slopes show (extract.cc, "Along-line smoothing"; issue 15); only on frames whose noise was measured on
+  // lit pixels (LineStats::noise_on_lit).
   bool smooth_curvature = true;
   // A steep line's centre (over kSteepSlope columns per row: the table top's line, a grazing surface)
   // measured across the line from the pixels of neighbouring rows, not along its row (steep.cc); only on
