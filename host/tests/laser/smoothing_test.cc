@@ -104,7 +104,7 @@ SetErrors MeasureSet(const std::string& scene_file, double f_number, int steps,
       EXPECT_TRUE(own.stats.noise_on_lit);
       const double steep_step = own.stats.noise_on_lit ? options.smooth_steep_step_px : 0.0;
       SmoothAlongLine(&fit, options.smooth_half_rows, options.smooth_order, options.smooth_max_jump_px,
-                      options.smooth_outlier_px, &scratch, steep_step);
+                      options.smooth_outlier_px, &scratch, steep_step, options.smooth_curvature);
       std::map<int, std::vector<double>> by_row;
       std::map<int, bool> on_object;
       for (const bundle::LinePoint& t : truth) {

@@ -126,6 +126,10 @@ struct ExtractOptions {
   // smoothing also joins rows whose column step exceeds smooth_max_jump_px but is within this of the
   // previous row's step (a steep line continuing its slope; extract.cc, "Along-line smoothing"). 0: off.
   double smooth_steep_step_px = 3.0;
+  // The straight fit (smooth_order 1) less its bias on a curved line, from the curvature that the fit's
+  // slopes show (extract.cc, "Along-line smoothing"; issue 15); only on frames whose noise was measured on
+  // lit pixels (LineStats::noise_on_lit).
+  bool smooth_curvature = true;
   // A steep line's centre (over kSteepSlope columns per row: the table top's line, a grazing surface)
   // measured across the line from the pixels of neighbouring rows, not along its row (steep.cc); only on
   // frames whose noise was measured on lit pixels (LineStats::noise_on_lit).
@@ -183,8 +187,11 @@ class LineExtractor {
 // for tests. `scratch` is reused between calls. Points keep their row, peak, width, quality and flags.
 // steep_step_change_px > 0 also joins rows whose column step is larger than max_jump_px but within
 // steep_step_change_px of the previous step (a steep line continuing its slope; extract.cc).
+// curvature (order 1 only) takes out the straight fit's bias on a curved line (ExtractOptions::
+// smooth_curvature).
 void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, double max_jump_px,
-                     double outlier_px, std::vector<float>* scratch, double steep_step_change_px = 0.0);
+                     double outlier_px, std::vector<float>* scratch, double steep_step_change_px = 0.0,
+                     bool curvature = false);
 
 // One-shot convenience.
 Result<Line> ExtractLine(const cv::Mat& on, const cv::Mat& off, const ExtractOptions& options = {});
