@@ -93,6 +93,12 @@ __attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, con
 // ScorePoints (point.cc) of the points [0, n - n % 4), 4 at a time, bit for bit; returns how many.
 __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* terms, const FrameScale& frame, LinePoint* points,
                                                        size_t n);
+// AcrossRowSums (kernels_scalar.simd.hpp: ends.cc's centre across the line, one row), 4 pixels at a time, bit
+// for bit.
+__attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
+                                                       int c_last, double dr, double foot_c, double s, double length,
+                                                       double t, double half, double level, int threshold,
+                                                       double along_px, double* sum_w, double* sum_wt);
 #endif
 
 }  // namespace rotoscan::laser::detail

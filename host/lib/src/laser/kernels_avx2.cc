@@ -9,6 +9,7 @@
 #include <immintrin.h>
 
 #include <algorithm>
+#include <cstddef>
 #include <cstdint>
 
 namespace rotoscan::laser::detail {
@@ -231,6 +232,73 @@ __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* t, cons
     }
   }
   return whole;
+}
+
+// AcrossRowSums (kernels_scalar.simd.hpp) over the columns [c, c_last], 4 at a time (the last block's lanes
+// past c_last masked off): each pixel's along, across, test and weight are the scalar loop's operations on
+// the same numbers (IEEE double, no fused multiply-add), and the weights of the pixels that pass are added
+// to the sums one by one in column order, so the sums are the same bits.
+__attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
+                                                       int c_last, double dr, double foot_c, double s, double length,
+                                                       double t, double half, double level, int threshold,
+                                                       double along_px, double* sum_w, double* sum_wt) {
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
+  const __m256d v_dr = _mm256_set1_pd(dr), v_sdr = _mm256_set1_pd(s * dr), v_s = _mm256_set1_pd(s);
+  const __m256d v_foot = _mm256_set1_pd(foot_c), v_length = _mm256_set1_pd(length), v_t = _mm256_set1_pd(t);
+  const __m256d v_half = _mm256_set1_pd(half), v_along = _mm256_set1_pd(along_px), v_level = _mm256_set1_pd(level);
+  const __m128i lanes = _mm_setr_epi32(0, 1, 2, 3), full = _mm_set1_epi32(255);
+  const __m128i headroom = _mm_set1_epi32(255 - threshold);
+  double w_sum = *sum_w, wt_sum = *sum_wt;
+  for (; c <= c_last; c += 4) {
+    __m128i a, b;
+    const int n = c_last - c + 1;  // columns left: the lanes from n on are no pixel of the row's run
+    if (n < 4) {
+      alignas(16) int32_t a4[4] = {0, 0, 0, 0}, b4[4] = {0, 0, 0, 0};
+      for (int j = 0; j < n; ++j) {
+        a4[j] = pa[static_cast<ptrdiff_t>(c + j) * step];
+        b4[j] = pb[static_cast<ptrdiff_t>(c + j) * step];
+      }
+      a = _mm_load_si128(reinterpret_cast<const __m128i*>(a4));
+      b = _mm_load_si128(reinterpret_cast<const __m128i*>(b4));
+    } else if (step == 1) {
+      int32_t a4, b4;
+      __builtin_memcpy(&a4, pa + c, 4);
+      __builtin_memcpy(&b4, pb + c, 4);
+      a = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(a4));
+      b = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(b4));
+    } else {
+      const uint8_t* qa = pa + static_cast<ptrdiff_t>(c) * step;
+      const uint8_t* qb = pb + static_cast<ptrdiff_t>(c) * step;
+      a = _mm_setr_epi32(qa[0], qa[step], qa[2 * step], qa[3 * step]);
+      b = _mm_setr_epi32(qb[0], qb[step], qb[2 * step], qb[3 * step]);
+    }
+    // LaserDifference: 255 where a saturates over b <= 255 - threshold, else max(a - b, 0).
+    const __m128i saturated = _mm_andnot_si128(_mm_cmpgt_epi32(b, headroom), _mm_cmpeq_epi32(a, full));
+    const __m128i d = _mm_blendv_epi8(_mm_max_epi32(_mm_sub_epi32(a, b), _mm_setzero_si128()), full, saturated);
+    const __m256d dc = _mm256_sub_pd(_mm256_cvtepi32_pd(_mm_add_epi32(_mm_set1_epi32(c), lanes)), v_foot);
+    const __m256d along = _mm256_div_pd(_mm256_add_pd(v_dr, _mm256_mul_pd(v_s, dc)), v_length);
+    const __m256d across = _mm256_div_pd(_mm256_sub_pd(dc, v_sdr), v_length);
+    const __m256d w = _mm256_sub_pd(_mm256_cvtepi32_pd(d), v_level);
+    // Kept: not (|along| > along_px), not (|across - t| > half), w > 0 (the scalar loop's tests).
+    const __m256d out = _mm256_or_pd(
+        _mm256_cmp_pd(_mm256_and_pd(along, abs_mask), v_along, _CMP_GT_OQ),
+        _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ));
+    __m256d keep = _mm256_andnot_pd(out, _mm256_cmp_pd(w, _mm256_setzero_pd(), _CMP_GT_OQ));
+    if (n < 4) keep = _mm256_and_pd(keep, _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_cmplt_epi32(lanes, _mm_set1_epi32(n)))));
+    if (_mm256_movemask_pd(keep) == 0) continue;
+    // The lanes in order, each added where kept (a lane not kept adds +0, which leaves the sums as they are:
+    // neither is ever -0, as both start at +0 and a sum of numbers is -0 only when all of them are).
+    const __m256d keep_w = _mm256_and_pd(keep, w);
+    const __m256d keep_wt = _mm256_and_pd(keep, _mm256_mul_pd(w, across));
+    const __m128d w01 = _mm256_castpd256_pd128(keep_w), w23 = _mm256_extractf128_pd(keep_w, 1);
+    const __m128d t01 = _mm256_castpd256_pd128(keep_wt), t23 = _mm256_extractf128_pd(keep_wt, 1);
+    w_sum += _mm_cvtsd_f64(w01), wt_sum += _mm_cvtsd_f64(t01);
+    w_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(w01, w01)), wt_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(t01, t01));
+    w_sum += _mm_cvtsd_f64(w23), wt_sum += _mm_cvtsd_f64(t23);
+    w_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(w23, w23)), wt_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(t23, t23));
+  }
+  *sum_w = w_sum;
+  *sum_wt = wt_sum;
 }
 
 }  // namespace rotoscan::laser::detail
