@@ -294,6 +294,47 @@ TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
   EXPECT_GT(kept, 1000);  // pixels were kept, not all rejected
 }
 
+// SteepColumnAvx2 against its portable namesake, every bin's 8 sums bit for bit: random columns of random
+// frames (saturated pixels, noise), runs of 0 to 40 rows anywhere in the frame (rows relative to a base
+// row above or below them), bins 0.2-0.7 of a row apart either way and clamped at both ends, sums that
+// start at 0 or elsewhere.
+TEST(KernelsTest, SteepColumnAvx2MatchesPortable) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(47);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::uniform_int_distribution<int> byte(0, 255);
+  const int rows = 300, stride = 5;
+  std::vector<uint8_t> on(static_cast<size_t>(rows * stride)), off(on.size());
+  int added = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    for (size_t k = 0; k < on.size(); ++k) {
+      off[k] = static_cast<uint8_t>(byte(rng) / 4);
+      on[k] = static_cast<uint8_t>(std::min(255, off[k] + (unit(rng) < 0.2 ? 255 : byte(rng))));
+    }
+    const int bins = 40;
+    std::vector<double> scalar_moments(8 * bins), avx2_moments;
+    for (double& m : scalar_moments) m = trial % 2 == 0 ? 0.0 : std::round(1000 * (unit(rng) - 0.3));
+    avx2_moments = scalar_moments;
+    const int r_first = std::uniform_int_distribution<int>(0, rows - 1)(rng);
+    const int r_last = std::min(rows - 1, r_first + std::uniform_int_distribution<int>(-1, 40)(rng));
+    const double per_row = (0.1 + 0.25 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1);
+    const double u0 = 20 * unit(rng) - per_row * r_first;
+    const int threshold = std::uniform_int_distribution<int>(1, 40)(rng);
+    const int min_d = std::uniform_int_distribution<int>(1, 120)(rng);
+    const double cc = std::uniform_int_distribution<int>(0, 900)(rng);
+    const int base_row = std::uniform_int_distribution<int>(0, rows - 1)(rng);
+    const int column = std::uniform_int_distribution<int>(0, stride - 1)(rng);
+    scalar::SteepColumn(on.data() + column, off.data() + column, stride, stride, r_first, r_last, threshold, min_d, u0,
+                        per_row, 2.0, bins - 1, cc, base_row, scalar_moments.data());
+    SteepColumnAvx2(on.data() + column, off.data() + column, stride, stride, r_first, r_last, threshold, min_d, u0,
+                    per_row, 2.0, bins - 1, cc, base_row, avx2_moments.data());
+    ASSERT_EQ(0, std::memcmp(scalar_moments.data(), avx2_moments.data(), scalar_moments.size() * sizeof(double)))
+        << "trial " << trial;
+    added += r_last >= r_first;
+  }
+  EXPECT_GT(added, 2000);
+}
+
 // RecentreLineEnds (ends.cc) with its AVX2 row sums (AcrossRowSumsAvx2) against its scalar loop, bit for
 // bit: random steep lines (1.2-6 columns per row, either sign) ending inside the frame, saturated in places
 // (the laser-on frame at 255 over a lit laser-off frame), in gray frames and in the red channel of color

@@ -99,6 +99,12 @@ __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const 
                                                        int c_last, double dr, double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
                                                        double along_px, double* sum_w, double* sum_wt);
+// SteepColumn (kernels_scalar.simd.hpp: steep.cc's pixel sums, one column) with vectors, bit for bit, where
+// rows and columns are under 2^20.
+__attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,
+                                                    size_t b_stride, int r_first, int r_last, int threshold,
+                                                    int min_d, double u0, double per_row, double bins_per_px,
+                                                    double last_bin, double cc, int base_row, double* moments);
 #endif
 
 }  // namespace rotoscan::laser::detail

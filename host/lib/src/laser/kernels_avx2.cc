@@ -301,5 +301,33 @@ __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const 
   *sum_wt = wt_sum;
 }
 
+// SteepColumn (kernels_scalar.simd.hpp) with each bin's 8 sums added to as two vectors: the same additions
+// in the same order. Each term is a whole number under 2^53 (the caller sees to it: rows and columns under
+// 2^20), so exact here and in the scalar loop: d r^2 may be formed as d (r^2) rather than (d r) r, and
+// (1, c, r, r^2) row by row by adding (0, 0, 1, 2 r + 1); the same terms, hence the same bits.
+__attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,
+                                                    size_t b_stride, int r_first, int r_last, int threshold,
+                                                    int min_d, double u0, double per_row, double bins_per_px,
+                                                    double last_bin, double cc, int base_row, double* moments) {
+  const double rr0 = r_first - base_row;
+  __m256d ones = _mm256_setr_pd(1.0, cc, rr0, rr0 * rr0);  // (1, c, r, r^2) of row r
+  __m256d step = _mm256_setr_pd(0.0, 0.0, 1.0, 2.0 * rr0 + 1.0);
+  const __m256d step_step = _mm256_setr_pd(0.0, 0.0, 0.0, 2.0);
+  const __m128d low = _mm_setzero_pd(), high = _mm_set_sd(last_bin);
+  for (int r = r_first; r <= r_last; ++r) {
+    const int d = LaserDifference(pa[static_cast<size_t>(r) * a_stride], pb[static_cast<size_t>(r) * b_stride], threshold);
+    if (d >= min_d) {
+      // std::clamp(u, 0, last_bin) (u is never NaN: the crossing row is a number), then the bin.
+      const __m128d u = _mm_set_sd((u0 + r * per_row) * bins_per_px);
+      const int64_t b = _mm_cvttsd_si64(_mm_min_sd(_mm_max_sd(u, low), high));
+      double* m = moments + 8 * b;
+      _mm256_storeu_pd(m, _mm256_add_pd(_mm256_loadu_pd(m), _mm256_mul_pd(_mm256_set1_pd(d), ones)));
+      _mm256_storeu_pd(m + 4, _mm256_add_pd(_mm256_loadu_pd(m + 4), ones));
+    }
+    ones = _mm256_add_pd(ones, step);
+    step = _mm256_add_pd(step, step_step);
+  }
+}
+
 }  // namespace rotoscan::laser::detail
 #endif  // ROTOSCAN_HAVE_SSSE3_PATH

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 
 #include "extract_steps.h"
@@ -176,6 +177,32 @@ inline void AcrossRowSums(const uint8_t* pa, const uint8_t* pb, int step, int c_
   }
   *sum_w = w_sum;
   *sum_wt = wt_sum;
+}
+
+
+// steep.cc's pixel sums (MeasureRun), one column: over its rows [r_first, r_last] (pa, pb: the frames' pixel
+// of the column in row 0, rows a_stride / b_stride bytes apart), the pixels whose difference reaches min_d,
+// each into the bin of its along coordinate ((u0 + r per_row) bins_per_px, clamped to [0, last_bin]): its 8
+// sums d, d c, d r, d r^2, 1, c, r, r^2 (c = cc, r relative to base_row) at moments[8 b .. 8 b + 8).
+inline void SteepColumn(const uint8_t* pa, const uint8_t* pb, size_t a_stride, size_t b_stride, int r_first,
+                        int r_last, int threshold, int min_d, double u0, double per_row, double bins_per_px,
+                        double last_bin, double cc, int base_row, double* moments) {
+  for (int r = r_first; r <= r_last; ++r) {
+    const int d = LaserDifference(pa[static_cast<size_t>(r) * a_stride], pb[static_cast<size_t>(r) * b_stride], threshold);
+    if (d < min_d) continue;
+    const double u = (u0 + r * per_row) * bins_per_px;
+    const size_t b = static_cast<size_t>(std::clamp(u, 0.0, last_bin));
+    const double dd = d, rr = r - base_row;
+    double* m = moments + 8 * b;
+    m[0] += dd;
+    m[1] += dd * cc;
+    m[2] += dd * rr;
+    m[3] += dd * rr * rr;
+    m[4] += 1;
+    m[5] += cc;
+    m[6] += rr;
+    m[7] += rr * rr;
+  }
 }
 
 }  // namespace rotoscan::laser::detail::scalar

@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "extract_steps.h"
+#include "kernels.h"
 
 namespace rotoscan::laser::detail {
 namespace {
@@ -50,6 +51,7 @@ struct AlongMoments {
   double d = 0, dc = 0, dr = 0, drr = 0;
   double n = 0, nc = 0, nr = 0, nrr = 0;
 };
+static_assert(sizeof(AlongMoments) == 8 * sizeof(double), "SteepColumn reads a bin as 8 doubles");
 
 // Bins per px along the line, and the columns beyond the points' windows that a run covers.
 constexpr double kSteepBinsPerPx = 2.0;
@@ -61,6 +63,11 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
                const std::vector<LinePoint>& p, const SteepFit* fits, size_t count,
                std::vector<float>* moved) {
   const int rows = on.rows, cols = on.cols, step = on.channels();
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  // The column sums as vectors (SteepColumnAvx2, the same bits), where its terms are exact (rows and
+  // columns under 2^20).
+  const bool avx2_sums = HaveAvx2() && rows <= (1 << 20) && cols <= (1 << 20);
+#endif
   // The columns any point's window reaches: within kSteepAlongPx along the line of its column, i.e.
   // kSteepAlongPx |s| / L columns, and a margin.
   double reach = 0, c_min = fits[0].c0, c_max = fits[0].c0;
@@ -135,23 +142,17 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
     const int min_d = f.min_d;
     AlongMoments* const bin = prefix.data() + 1;
     const double last_bin = static_cast<double>(bins - 1);
-    for (int r = r_first; r <= r_last; ++r) {
-      const int av = on.ptr<uint8_t>(r)[c * step + channel], bv = off.ptr<uint8_t>(r)[c * step + channel];
-      const int d = LaserDifference(av, bv, threshold);
-      if (d < min_d) continue;
-      const double u = (u0 + r * per_row) * kSteepBinsPerPx;
-      const size_t b = static_cast<size_t>(std::clamp(u, 0.0, last_bin));
-      const double dd = d, rr = r - base_row;
-      AlongMoments& m = bin[b];
-      m.d += dd;
-      m.dc += dd * cc;
-      m.dr += dd * rr;
-      m.drr += dd * rr * rr;
-      m.n += 1;
-      m.nc += cc;
-      m.nr += rr;
-      m.nrr += rr * rr;
+    const uint8_t* const pa = on.ptr<uint8_t>(0) + c * step + channel;
+    const uint8_t* const pb = off.ptr<uint8_t>(0) + c * step + channel;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+    if (avx2_sums) {
+      SteepColumnAvx2(pa, pb, on.step[0], off.step[0], r_first, r_last, threshold, min_d, u0, per_row, kSteepBinsPerPx,
+                      last_bin, cc, base_row, &bin[0].d);
+      continue;
     }
+#endif
+    scalar::SteepColumn(pa, pb, on.step[0], off.step[0], r_first, r_last, threshold, min_d, u0, per_row,
+                        kSteepBinsPerPx, last_bin, cc, base_row, &bin[0].d);
   }
   for (size_t b = 1; b <= bins; ++b) {
     AlongMoments& m = prefix[b];
