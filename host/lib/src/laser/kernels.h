@@ -99,6 +99,15 @@ __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const 
                                                        int c_last, double dr, double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
                                                        double along_px, double* sum_w, double* sum_wt);
+// ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last]; on0, off0 the laser's byte of row
+// 0, rows on_stride / off_stride bytes apart, `channels` bytes a pixel): each row's run of columns bounded as
+// ends.cc bounds it, then AcrossRowSumsAvx2; bit for bit as ends.cc's scalar loop.
+__attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                          size_t off_stride, int channels, int cols, int r_first,
+                                                          int r_last, int r0, double a, double s, double length,
+                                                          double foot_c, double t, double half, double level,
+                                                          int threshold, double along_px, double* sum_w,
+                                                          double* sum_wt);
 // SteepColumn (kernels_scalar.simd.hpp: steep.cc's pixel sums, one column) with vectors, bit for bit, where
 // rows and columns are under 2^20.
 __attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,

@@ -238,8 +238,8 @@ __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* t, cons
 // past c_last masked off): each pixel's along, across, test and weight are the scalar loop's operations on
 // the same numbers (IEEE double, no fused multiply-add), and the weights of the pixels that pass are added
 // to the sums one by one in column order, so the sums are the same bits.
-__attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
-                                                       int c_last, double dr, double foot_c, double s, double length,
+__attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsInline(const uint8_t* pa, const uint8_t* pb,
+                                                       int step, int c, int c_last, double dr, double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
                                                        double along_px, double* sum_w, double* sum_wt) {
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
@@ -299,6 +299,37 @@ __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const 
   }
   *sum_w = w_sum;
   *sum_wt = wt_sum;
+}
+
+__attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
+                                                       int c_last, double dr, double foot_c, double s, double length,
+                                                       double t, double half, double level, int threshold,
+                                                       double along_px, double* sum_w, double* sum_wt) {
+  AcrossRowSumsInline(pa, pb, step, c, c_last, dr, foot_c, s, length, t, half, level, threshold, along_px, sum_w, sum_wt);
+}
+
+// ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last] of the frames, `channels` bytes a
+// pixel, the laser's byte first at on0 / off0): each row's run of columns as ends.cc bounds it (the same
+// operations; ceil and floor are exact however they are done), then AcrossRowSumsAvx2. Here rather than
+// in ends.cc so that the bounds' roundings are single instructions and the constants are set once a window.
+__attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                          size_t off_stride, int channels, int cols, int r_first,
+                                                          int r_last, int r0, double a, double s, double length,
+                                                          double foot_c, double t, double half, double level,
+                                                          int threshold, double along_px, double* sum_w,
+                                                          double* sum_wt) {
+  for (int r = r_first; r <= r_last; ++r) {
+    const double line = a + s * r;
+    const double dr0 = r - r0;
+    const double along_a = foot_c + (-dr0 - along_px * length) / s;
+    const double along_b = foot_c + (-dr0 + along_px * length) / s;
+    const int c_first = std::max({0, static_cast<int>(std::ceil(line + (t - half) * length - 1.0)),
+                                  static_cast<int>(std::floor(std::min(along_a, along_b))) - 1});
+    const int c_last = std::min({cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)),
+                                 static_cast<int>(std::ceil(std::max(along_a, along_b))) + 1});
+    AcrossRowSumsInline(on0 + static_cast<size_t>(r) * on_stride, off0 + static_cast<size_t>(r) * off_stride, channels,
+                        c_first, c_last, dr0, foot_c, s, length, t, half, level, threshold, along_px, sum_w, sum_wt);
+  }
 }
 
 // SteepColumn (kernels_scalar.simd.hpp) with each bin's 8 sums added to as two vectors: the same additions
