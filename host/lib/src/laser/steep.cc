@@ -36,12 +36,14 @@ namespace {
 
 // A steep point's fit (RecentreSteepLines): its index, row and column, the parabola column = c0 + s dr +
 // k dr^2 (dr = row - row0) through its stretch, the fit's column at its row, L = sqrt(1 + s^2), the half
-// width across the line, px, and the weights' level (w = d - level where d >= min_d).
+// width across the line, px, and the weights' level (w = d - level where d >= min_d); the half width in rows
+// (half L / |s|) and the along coordinate's change per row (sign(s) / L), as MeasureRun's columns use them.
 struct SteepFit {
   size_t index;
   int row;
   double c0, s, k, fitted, length, half, level;
   int min_d;
+  double half_rows, per_row;
 };
 
 // Sums over the pixels of a stretch of the line's along coordinate, rows relative to the run's first
@@ -134,10 +136,10 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
     const size_t at = static_cast<size_t>(c - c_first);
     if (std::isnan(crossing[at])) continue;
     const SteepFit& f = fits[nearest[at]];
-    const double half_rows = f.half * f.length / std::abs(f.s);
+    const double half_rows = f.half_rows;
     const int r_first = std::max(0, static_cast<int>(std::ceil(crossing[at] - half_rows)));
     const int r_last = std::min(rows - 1, static_cast<int>(std::floor(crossing[at] + half_rows)));
-    const double per_row = sign / f.length, cc = c - c_first;
+    const double per_row = f.per_row, cc = c - c_first;  // sign / f.length: a run's slopes have one sign
     const double u0 = along[at] - crossing[at] * per_row + shift;  // the along coordinate at row 0
     const int min_d = f.min_d;
     AlongMoments* const bin = prefix.data() + 1;
@@ -295,7 +297,8 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     // d >= floor(level) + 1 (whatever the peak, a whole number of DN or not). No pixel passes over 255.
     const int min_d = static_cast<int>(std::floor(level)) + 1;
     if (min_d > 255) continue;
-    fits.push_back({i, r0, c0, s, curvature, c0 + x[0], length, half, level, min_d});
+    fits.push_back({i, r0, c0, s, curvature, c0 + x[0], length, half, level, min_d, half * length / std::abs(s),
+                    (s > 0 ? 1.0 : -1.0) / length});
   }
   // Runs of consecutive steep points, each one curve.
   size_t run_first = 0;
