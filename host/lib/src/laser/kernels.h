@@ -108,6 +108,20 @@ __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, si
                                                           double foot_c, double t, double half, double level,
                                                           int threshold, double along_px, double* sum_w,
                                                           double* sum_wt);
+// steep.cc's MeasureRun over its columns (their crossing rows, along coordinates and nearest fits, from
+// c_first), each column's rows bounded as there, then SteepColumnAvx2; bit for bit. A steep fit as it reads
+// it (steep.cc's SteepFit): its half width in rows, the along
+// coordinate's change per row, the weights' lowest difference.
+struct SteepColumnFit {
+  double half_rows, per_row;
+  int min_d;
+};
+__attribute__((target("avx2"))) void SteepColumnsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                     size_t off_stride, int channels, int rows, int c_first,
+                                                     int c_last, const double* crossing, const double* along,
+                                                     const uint32_t* nearest, const SteepColumnFit* fits,
+                                                     int threshold, double shift, double bins_per_px,
+                                                     double last_bin, int base_row, double* moments);
 // SteepColumn (kernels_scalar.simd.hpp: steep.cc's pixel sums, one column) with vectors, bit for bit, where
 // rows and columns are under 2^20.
 __attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,

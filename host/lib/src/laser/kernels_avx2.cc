@@ -9,6 +9,7 @@
 #include <immintrin.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 
@@ -336,10 +337,10 @@ __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, si
 // in the same order. Each term is a whole number under 2^53 (the caller sees to it: rows and columns under
 // 2^20), so exact here and in the scalar loop: d r^2 may be formed as d (r^2) rather than (d r) r, and
 // (1, c, r, r^2) row by row by adding (0, 0, 1, 2 r + 1); the same terms, hence the same bits.
-__attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,
-                                                    size_t b_stride, int r_first, int r_last, int threshold,
-                                                    int min_d, double u0, double per_row, double bins_per_px,
-                                                    double last_bin, double cc, int base_row, double* moments) {
+__attribute__((target("avx2"), always_inline)) static inline void SteepColumnInline(
+    const uint8_t* pa, const uint8_t* pb, size_t a_stride, size_t b_stride, int r_first, int r_last, int threshold,
+    int min_d, double u0, double per_row, double bins_per_px, double last_bin, double cc, int base_row,
+    double* moments) {
   const double rr0 = r_first - base_row;
   __m256d ones = _mm256_setr_pd(1.0, cc, rr0, rr0 * rr0);  // (1, c, r, r^2) of row r
   __m256d step = _mm256_setr_pd(0.0, 0.0, 1.0, 2.0 * rr0 + 1.0);
@@ -357,6 +358,37 @@ __attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const ui
     }
     ones = _mm256_add_pd(ones, step);
     step = _mm256_add_pd(step, step_step);
+  }
+}
+__attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,
+                                                    size_t b_stride, int r_first, int r_last, int threshold,
+                                                    int min_d, double u0, double per_row, double bins_per_px,
+                                                    double last_bin, double cc, int base_row, double* moments) {
+  SteepColumnInline(pa, pb, a_stride, b_stride, r_first, r_last, threshold, min_d, u0, per_row, bins_per_px, last_bin,
+                    cc, base_row, moments);
+}
+
+// steep.cc's MeasureRun, its columns [c_first, c_last] (crossing, along, nearest: per column from c_first;
+// on0 / off0: the laser's byte of row 0 and column 0): each column's run of rows bounded as there (the same
+// operations; ceil and floor are exact however they are done), then its sums as SteepColumnAvx2's. Here so
+// that the bounds' roundings are single instructions.
+__attribute__((target("avx2"))) void SteepColumnsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                     size_t off_stride, int channels, int rows, int c_first,
+                                                     int c_last, const double* crossing, const double* along,
+                                                     const uint32_t* nearest, const SteepColumnFit* fits,
+                                                     int threshold, double shift, double bins_per_px,
+                                                     double last_bin, int base_row, double* moments) {
+  for (int c = c_first; c <= c_last; ++c) {
+    const size_t at = static_cast<size_t>(c - c_first);
+    if (std::isnan(crossing[at])) continue;
+    const SteepColumnFit& f = fits[nearest[at]];
+    const int r_first = std::max(0, static_cast<int>(std::ceil(crossing[at] - f.half_rows)));
+    const int r_last = std::min(rows - 1, static_cast<int>(std::floor(crossing[at] + f.half_rows)));
+    const double cc = c - c_first;
+    const double u0 = along[at] - crossing[at] * f.per_row + shift;
+    SteepColumnInline(on0 + static_cast<ptrdiff_t>(c) * channels, off0 + static_cast<ptrdiff_t>(c) * channels,
+                      on_stride, off_stride, r_first, r_last, threshold, f.min_d, u0, f.per_row, bins_per_px,
+                      last_bin, cc, base_row, moments);
   }
 }
 
