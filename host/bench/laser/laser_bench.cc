@@ -23,6 +23,9 @@
 //                                      red channel as gray; compare with BM_StreamReadWebcam
 //   BM_Noise/<frames>                  the noise sample alone (the threshold's): 0 the frames above,
 //                                      1 the typical frames
+//   BM_WebcamStep/<step>               a step after the row loop alone on the typical frames: 0 the gap
+//                                      step, 1 the steep step, 2 the line ends (points: filled / moved /
+//                                      measured per frame); second argument 1: one pair, cached
 //
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
 // 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows; and the line is
@@ -235,6 +238,48 @@ void BM_Noise(benchmark::State& state) {
   SetCounters(state, 2u * f.on[0].total());
 }
 BENCHMARK(BM_Noise)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+
+// The steps after the row loop alone, on the typical frames (WebcamFrames), each from the points it is given
+// in the default extractor (the extractor run with it and the later steps off; copied each iteration):
+// 0 the gap step (FillLineGaps, gaps.cc), 1 the steep step (RecentreSteepLines, steep.cc), 2 the line ends
+// (RecentreLineEnds, ends.cc). The frames come from memory here, not from the cache as after the row pass.
+void BM_WebcamStep(benchmark::State& state) {
+  const Frames& f = WebcamFrames();
+  const int which = static_cast<int>(state.range(0));
+  std::vector<rotoscan::laser::Line> lines(f.on.size());
+  for (size_t i = 0; i < f.on.size(); ++i) {
+    rotoscan::laser::ExtractOptions options;
+    options.smooth_half_rows = 0;
+    options.line_ends = false;
+    options.steep_across = which == 2;
+    options.fill_gaps = which >= 1;
+    if (!rotoscan::laser::LineExtractor(options).Extract(f.on[i], f.off[i], &lines[i]).ok()) std::abort();
+  }
+  std::vector<rotoscan::laser::LinePoint> points;
+  size_t i = 0, total = 0;
+  for (auto _ : state) {
+    points = lines[i].points;
+    const rotoscan::laser::LineStats& s = lines[i].stats;
+    if (which == 0) {
+      total += static_cast<size_t>(rotoscan::laser::detail::FillLineGaps(f.on[i], f.off[i], 0, s.noise_dn, &points,
+                                                                         rotoscan::laser::detail::kGapMinZ, false));
+    } else if (which == 1) {
+      total += static_cast<size_t>(
+          rotoscan::laser::detail::RecentreSteepLines(f.on[i], f.off[i], 0, s.threshold_dn, &points));
+    } else {
+      total += static_cast<size_t>(
+          rotoscan::laser::detail::RecentreLineEnds(f.on[i], f.off[i], 0, s.threshold_dn, &points));
+    }
+    benchmark::DoNotOptimize(points.data());
+    if (state.range(1) == 0) i = (i + 1) % f.on.size();
+  }
+  state.counters["frames_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["points_per_frame"] = static_cast<double>(total) / std::max<int64_t>(1, state.iterations());
+  state.SetLabel(std::string(which == 0 ? "gap step" : which == 1 ? "steep step" : "line ends") +
+                 (state.range(1) == 1 ? ", cached" : ""));
+}
+// Arguments: the step (above); 1: one pair over and over (the frames in the cache, as after the row pass).
+BENCHMARK(BM_WebcamStep)->ArgsProduct({{0, 1, 2}, {0, 1}})->Unit(benchmark::kMicrosecond);
 
 
 // The parts of BM_ExtractTriangulate/0/1/0 alone, on the lines it extracts (per row, then copied each

@@ -258,6 +258,146 @@ TEST(KernelsTest, ScorePointsAvx2MatchesScalar) {
   }
 }
 
+// AcrossRowSumsAvx2 against its portable namesake, both sums bit for bit (in double, before the step rounds
+// its result to a float column): random rows (saturated pixels, noise), lines of either slope through them
+// at random offsets, windows cut at any column (runs of 0 to 40 columns, so every remainder of 4), gray and
+// 3-channel rows, sums that start at 0 or elsewhere.
+TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(43);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  int kept = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const int cols = 64, step = trial % 2 == 0 ? 1 : 3;
+    std::vector<uint8_t> on_row, off_row, a(static_cast<size_t>(cols * step)), b(static_cast<size_t>(cols * step));
+    RandomRows(&rng, cols, &on_row, &off_row);
+    for (int c = 0; c < cols; ++c) {
+      a[static_cast<size_t>(c * step)] = on_row[static_cast<size_t>(c)];
+      b[static_cast<size_t>(c * step)] = off_row[static_cast<size_t>(c)];
+    }
+    const double s = (1 + 8 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1), length = std::sqrt(1 + s * s);
+    const double dr = std::uniform_int_distribution<int>(-3, 3)(rng), foot_c = 10 + 44 * unit(rng);
+    const double t = unit(rng) - 0.5, half = 1 + 4 * unit(rng), level = 60 * unit(rng);
+    const int threshold = std::uniform_int_distribution<int>(1, 40)(rng);
+    const int c_first = std::uniform_int_distribution<int>(0, cols - 1)(rng);
+    const int c_last = std::min(cols - 1, c_first + std::uniform_int_distribution<int>(-1, 40)(rng));
+    double w0 = trial % 3 == 0 ? 0.0 : 100 * unit(rng), wt0 = trial % 3 == 0 ? 0.0 : 100 * (unit(rng) - 0.5);
+    double sw_scalar = w0, swt_scalar = wt0, sw_avx2 = w0, swt_avx2 = wt0;
+    scalar::AcrossRowSums(a.data(), b.data(), step, c_first, c_last, dr, foot_c, s, length, t, half, level, threshold,
+                          8.0, &sw_scalar, &swt_scalar);
+    AcrossRowSumsAvx2(a.data(), b.data(), step, c_first, c_last, dr, foot_c, s, length, t, half, level, threshold, 8.0,
+                      &sw_avx2, &swt_avx2);
+    ASSERT_EQ(0, std::memcmp(&sw_scalar, &sw_avx2, sizeof(double))) << "trial " << trial;
+    ASSERT_EQ(0, std::memcmp(&swt_scalar, &swt_avx2, sizeof(double))) << "trial " << trial;
+    kept += sw_scalar != w0;
+  }
+  EXPECT_GT(kept, 1000);  // pixels were kept, not all rejected
+}
+
+// SteepColumnAvx2 against its portable namesake, every bin's 8 sums bit for bit: random columns of random
+// frames (saturated pixels, noise), runs of 0 to 40 rows anywhere in the frame (rows relative to a base
+// row above or below them), bins 0.2-0.7 of a row apart either way and clamped at both ends, sums that
+// start at 0 or elsewhere.
+TEST(KernelsTest, SteepColumnAvx2MatchesPortable) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(47);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::uniform_int_distribution<int> byte(0, 255);
+  const int rows = 300, stride = 5;
+  std::vector<uint8_t> on(static_cast<size_t>(rows * stride)), off(on.size());
+  int added = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    for (size_t k = 0; k < on.size(); ++k) {
+      off[k] = static_cast<uint8_t>(byte(rng) / 4);
+      on[k] = static_cast<uint8_t>(std::min(255, off[k] + (unit(rng) < 0.2 ? 255 : byte(rng))));
+    }
+    const int bins = 40;
+    std::vector<double> scalar_moments(8 * bins), avx2_moments;
+    for (double& m : scalar_moments) m = trial % 2 == 0 ? 0.0 : std::round(1000 * (unit(rng) - 0.3));
+    avx2_moments = scalar_moments;
+    const int r_first = std::uniform_int_distribution<int>(0, rows - 1)(rng);
+    const int r_last = std::min(rows - 1, r_first + std::uniform_int_distribution<int>(-1, 40)(rng));
+    const double per_row = (0.1 + 0.25 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1);
+    const double u0 = 20 * unit(rng) - per_row * r_first;
+    const int threshold = std::uniform_int_distribution<int>(1, 40)(rng);
+    const int min_d = std::uniform_int_distribution<int>(1, 120)(rng);
+    const double cc = std::uniform_int_distribution<int>(0, 900)(rng);
+    const int base_row = std::uniform_int_distribution<int>(0, rows - 1)(rng);
+    const int column = std::uniform_int_distribution<int>(0, stride - 1)(rng);
+    scalar::SteepColumn(on.data() + column, off.data() + column, stride, stride, r_first, r_last, threshold, min_d, u0,
+                        per_row, 2.0, bins - 1, cc, base_row, scalar_moments.data());
+    SteepColumnAvx2(on.data() + column, off.data() + column, stride, stride, r_first, r_last, threshold, min_d, u0,
+                    per_row, 2.0, bins - 1, cc, base_row, avx2_moments.data());
+    ASSERT_EQ(0, std::memcmp(scalar_moments.data(), avx2_moments.data(), scalar_moments.size() * sizeof(double)))
+        << "trial " << trial;
+    added += r_last >= r_first;
+  }
+  EXPECT_GT(added, 2000);
+}
+
+// RecentreLineEnds (ends.cc) with its AVX2 row sums (AcrossRowSumsAvx2) against its scalar loop, bit for
+// bit: random steep lines (1.2-6 columns per row, either sign) ending inside the frame, saturated in places
+// (the laser-on frame at 255 over a lit laser-off frame), in gray frames and in the red channel of color
+// ones (a pixel every 3 bytes), their points a little off the line.
+TEST(KernelsTest, LineEndsAvx2MatchesScalar) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(41);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  int measured = 0;
+  for (int trial = 0; trial < 60; ++trial) {
+    const int rows = 120, cols = 400;
+    const double slope = (1.2 + 4.8 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1);
+    const int first = 10 + static_cast<int>(20 * unit(rng)), last = first + 40 + static_cast<int>(30 * unit(rng));
+    const double c_mid = cols / 2.0, sigma = 1.5 + 2 * unit(rng), peak = 30 + 300 * unit(rng);
+    const int r_mid = (first + last) / 2;
+    cv::Mat on(rows, cols, CV_8UC1), off(rows, cols, CV_8UC1);
+    for (int r = 0; r < rows; ++r) {
+      for (int c = 0; c < cols; ++c) {
+        const int b = static_cast<int>(40 * unit(rng)) + (c % 17 == 0 ? 200 : 0);
+        // The distance across the line; the line is lit only between its end rows (give or take a row).
+        const double across = (c - c_mid - slope * (r - r_mid)) / std::sqrt(1 + slope * slope);
+        const double along_row = r + (c - c_mid - slope * (r - r_mid)) * slope / (1 + slope * slope);
+        const bool lit = along_row >= first && along_row <= last;
+        const int a = b + (lit ? static_cast<int>(peak * std::exp(-0.5 * across * across / (sigma * sigma))) : 0) +
+                      static_cast<int>(3 * unit(rng));
+        off.at<uint8_t>(r, c) = static_cast<uint8_t>(b);
+        on.at<uint8_t>(r, c) = static_cast<uint8_t>(std::min(a, 255));
+      }
+    }
+    std::vector<LinePoint> points;
+    for (int r = first; r <= last; ++r) {
+      LinePoint& p = points.emplace_back();
+      p.row = r;
+      p.column = static_cast<float>(c_mid + slope * (r - r_mid) + (unit(rng) - 0.5) * 1.5);
+      p.peak = static_cast<float>(std::min(255.0, peak) * (0.8 + 0.2 * unit(rng)));
+      p.width = static_cast<float>(2.355 * sigma * std::sqrt(1 + slope * slope));
+      p.uncertainty_px = static_cast<float>(0.2 + unit(rng));
+    }
+    for (const int channels : {1, 3}) {
+      cv::Mat on_frame = on, off_frame = off;
+      if (channels == 3) {
+        const cv::Mat other(rows, cols, CV_8UC1, cv::Scalar(90));
+        cv::merge(std::vector<cv::Mat>{other, other, on}, on_frame);
+        cv::merge(std::vector<cv::Mat>{other, other, off}, off_frame);
+      }
+      const int channel = channels == 3 ? 2 : 0;
+      const int threshold = 8 + trial % 20;
+      std::vector<LinePoint> scalar_points = points, avx2_points = points;
+      internal::AllowVectorExtensions(false, false);
+      const int scalar_count = RecentreLineEnds(on_frame, off_frame, channel, threshold, &scalar_points);
+      internal::AllowVectorExtensions(true, true);
+      const int avx2_count = RecentreLineEnds(on_frame, off_frame, channel, threshold, &avx2_points);
+      ASSERT_EQ(scalar_count, avx2_count) << "trial " << trial << " channels " << channels;
+      for (size_t i = 0; i < points.size(); ++i) {
+        ASSERT_EQ(0, std::memcmp(&scalar_points[i].column, &avx2_points[i].column, sizeof(float)))
+            << "trial " << trial << " channels " << channels << " point " << i;
+      }
+      measured += avx2_count;
+    }
+  }
+  EXPECT_GT(measured, 500);  // the end rows were measured, not skipped
+}
+
 // The whole extraction with every vector extension the CPU has against SSE2 alone, every field of every
 // point bit for bit: saturated lines with notches, weak wide ones, two lines in a row, noise, rows
 // narrower than a vector, every estimator, smoothing on and off.

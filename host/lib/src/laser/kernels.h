@@ -93,6 +93,41 @@ __attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, con
 // ScorePoints (point.cc) of the points [0, n - n % 4), 4 at a time, bit for bit; returns how many.
 __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* terms, const FrameScale& frame, LinePoint* points,
                                                        size_t n);
+// AcrossRowSums (kernels_scalar.simd.hpp: ends.cc's centre across the line, one row), 4 pixels at a time, bit
+// for bit.
+__attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
+                                                       int c_last, double dr, double foot_c, double s, double length,
+                                                       double t, double half, double level, int threshold,
+                                                       double along_px, double* sum_w, double* sum_wt);
+// ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last]; on0, off0 the laser's byte of row
+// 0, rows on_stride / off_stride bytes apart, `channels` bytes a pixel): each row's run of columns bounded as
+// ends.cc bounds it, then AcrossRowSumsAvx2; bit for bit as ends.cc's scalar loop.
+__attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                          size_t off_stride, int channels, int cols, int r_first,
+                                                          int r_last, int r0, double a, double s, double length,
+                                                          double foot_c, double t, double half, double level,
+                                                          int threshold, double along_px, double* sum_w,
+                                                          double* sum_wt);
+// steep.cc's MeasureRun over its columns (their crossing rows, along coordinates and nearest fits, from
+// c_first), each column's rows bounded as there, then SteepColumnAvx2; bit for bit. A steep fit as it reads
+// it (steep.cc's SteepFit): its half width in rows, the along
+// coordinate's change per row, the weights' lowest difference.
+struct SteepColumnFit {
+  double half_rows, per_row;
+  int min_d;
+};
+__attribute__((target("avx2"))) void SteepColumnsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                     size_t off_stride, int channels, int rows, int c_first,
+                                                     int c_last, const double* crossing, const double* along,
+                                                     const uint32_t* nearest, const SteepColumnFit* fits,
+                                                     int threshold, double shift, double bins_per_px,
+                                                     double last_bin, int base_row, double* moments);
+// SteepColumn (kernels_scalar.simd.hpp: steep.cc's pixel sums, one column) with vectors, bit for bit, where
+// rows and columns are under 2^20.
+__attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,
+                                                    size_t b_stride, int r_first, int r_last, int threshold,
+                                                    int min_d, double u0, double per_row, double bins_per_px,
+                                                    double last_bin, double cc, int base_row, double* moments);
 #endif
 
 }  // namespace rotoscan::laser::detail

@@ -9,6 +9,8 @@
 #include <immintrin.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstddef>
 #include <cstdint>
 
 namespace rotoscan::laser::detail {
@@ -231,6 +233,163 @@ __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* t, cons
     }
   }
   return whole;
+}
+
+// AcrossRowSums (kernels_scalar.simd.hpp) over the columns [c, c_last], 4 at a time (the last block's lanes
+// past c_last masked off): each pixel's along, across, test and weight are the scalar loop's operations on
+// the same numbers (IEEE double, no fused multiply-add), and the weights of the pixels that pass are added
+// to the sums one by one in column order, so the sums are the same bits.
+__attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsInline(const uint8_t* pa, const uint8_t* pb,
+                                                       int step, int c, int c_last, double dr, double foot_c, double s, double length,
+                                                       double t, double half, double level, int threshold,
+                                                       double along_px, double* sum_w, double* sum_wt) {
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
+  const __m256d v_dr = _mm256_set1_pd(dr), v_sdr = _mm256_set1_pd(s * dr), v_s = _mm256_set1_pd(s);
+  const __m256d v_foot = _mm256_set1_pd(foot_c), v_length = _mm256_set1_pd(length), v_t = _mm256_set1_pd(t);
+  const __m256d v_half = _mm256_set1_pd(half), v_along = _mm256_set1_pd(along_px), v_level = _mm256_set1_pd(level);
+  const __m128i lanes = _mm_setr_epi32(0, 1, 2, 3), full = _mm_set1_epi32(255);
+  const __m128i headroom = _mm_set1_epi32(255 - threshold);
+  double w_sum = *sum_w, wt_sum = *sum_wt;
+  for (; c <= c_last; c += 4) {
+    __m128i a, b;
+    const int n = c_last - c + 1;  // columns left: the lanes from n on are no pixel of the row's run
+    if (n < 4) {
+      alignas(16) int32_t a4[4] = {0, 0, 0, 0}, b4[4] = {0, 0, 0, 0};
+      for (int j = 0; j < n; ++j) {
+        a4[j] = pa[static_cast<ptrdiff_t>(c + j) * step];
+        b4[j] = pb[static_cast<ptrdiff_t>(c + j) * step];
+      }
+      a = _mm_load_si128(reinterpret_cast<const __m128i*>(a4));
+      b = _mm_load_si128(reinterpret_cast<const __m128i*>(b4));
+    } else if (step == 1) {
+      int32_t a4, b4;
+      __builtin_memcpy(&a4, pa + c, 4);
+      __builtin_memcpy(&b4, pb + c, 4);
+      a = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(a4));
+      b = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(b4));
+    } else {
+      const uint8_t* qa = pa + static_cast<ptrdiff_t>(c) * step;
+      const uint8_t* qb = pb + static_cast<ptrdiff_t>(c) * step;
+      a = _mm_setr_epi32(qa[0], qa[step], qa[2 * step], qa[3 * step]);
+      b = _mm_setr_epi32(qb[0], qb[step], qb[2 * step], qb[3 * step]);
+    }
+    // LaserDifference: 255 where a saturates over b <= 255 - threshold, else max(a - b, 0).
+    const __m128i saturated = _mm_andnot_si128(_mm_cmpgt_epi32(b, headroom), _mm_cmpeq_epi32(a, full));
+    const __m128i d = _mm_blendv_epi8(_mm_max_epi32(_mm_sub_epi32(a, b), _mm_setzero_si128()), full, saturated);
+    const __m256d dc = _mm256_sub_pd(_mm256_cvtepi32_pd(_mm_add_epi32(_mm_set1_epi32(c), lanes)), v_foot);
+    const __m256d along = _mm256_div_pd(_mm256_add_pd(v_dr, _mm256_mul_pd(v_s, dc)), v_length);
+    const __m256d across = _mm256_div_pd(_mm256_sub_pd(dc, v_sdr), v_length);
+    const __m256d w = _mm256_sub_pd(_mm256_cvtepi32_pd(d), v_level);
+    // Kept: not (|along| > along_px), not (|across - t| > half), w > 0 (the scalar loop's tests).
+    const __m256d out = _mm256_or_pd(
+        _mm256_cmp_pd(_mm256_and_pd(along, abs_mask), v_along, _CMP_GT_OQ),
+        _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ));
+    __m256d keep = _mm256_andnot_pd(out, _mm256_cmp_pd(w, _mm256_setzero_pd(), _CMP_GT_OQ));
+    if (n < 4) keep = _mm256_and_pd(keep, _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_cmplt_epi32(lanes, _mm_set1_epi32(n)))));
+    if (_mm256_movemask_pd(keep) == 0) continue;
+    // The lanes in order, each added where kept (a lane not kept adds +0, which leaves the sums as they are:
+    // neither is ever -0, as both start at +0 and a sum of numbers is -0 only when all of them are).
+    const __m256d keep_w = _mm256_and_pd(keep, w);
+    const __m256d keep_wt = _mm256_and_pd(keep, _mm256_mul_pd(w, across));
+    const __m128d w01 = _mm256_castpd256_pd128(keep_w), w23 = _mm256_extractf128_pd(keep_w, 1);
+    const __m128d t01 = _mm256_castpd256_pd128(keep_wt), t23 = _mm256_extractf128_pd(keep_wt, 1);
+    w_sum += _mm_cvtsd_f64(w01), wt_sum += _mm_cvtsd_f64(t01);
+    w_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(w01, w01)), wt_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(t01, t01));
+    w_sum += _mm_cvtsd_f64(w23), wt_sum += _mm_cvtsd_f64(t23);
+    w_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(w23, w23)), wt_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(t23, t23));
+  }
+  *sum_w = w_sum;
+  *sum_wt = wt_sum;
+}
+
+__attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
+                                                       int c_last, double dr, double foot_c, double s, double length,
+                                                       double t, double half, double level, int threshold,
+                                                       double along_px, double* sum_w, double* sum_wt) {
+  AcrossRowSumsInline(pa, pb, step, c, c_last, dr, foot_c, s, length, t, half, level, threshold, along_px, sum_w, sum_wt);
+}
+
+// ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last] of the frames, `channels` bytes a
+// pixel, the laser's byte first at on0 / off0): each row's run of columns as ends.cc bounds it (the same
+// operations; ceil and floor are exact however they are done), then AcrossRowSumsAvx2. Here rather than
+// in ends.cc so that the bounds' roundings are single instructions and the constants are set once a window.
+__attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                          size_t off_stride, int channels, int cols, int r_first,
+                                                          int r_last, int r0, double a, double s, double length,
+                                                          double foot_c, double t, double half, double level,
+                                                          int threshold, double along_px, double* sum_w,
+                                                          double* sum_wt) {
+  for (int r = r_first; r <= r_last; ++r) {
+    const double line = a + s * r;
+    const double dr0 = r - r0;
+    const double along_a = foot_c + (-dr0 - along_px * length) / s;
+    const double along_b = foot_c + (-dr0 + along_px * length) / s;
+    const int c_first = std::max({0, static_cast<int>(std::ceil(line + (t - half) * length - 1.0)),
+                                  static_cast<int>(std::floor(std::min(along_a, along_b))) - 1});
+    const int c_last = std::min({cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)),
+                                 static_cast<int>(std::ceil(std::max(along_a, along_b))) + 1});
+    AcrossRowSumsInline(on0 + static_cast<size_t>(r) * on_stride, off0 + static_cast<size_t>(r) * off_stride, channels,
+                        c_first, c_last, dr0, foot_c, s, length, t, half, level, threshold, along_px, sum_w, sum_wt);
+  }
+}
+
+// SteepColumn (kernels_scalar.simd.hpp) with each bin's 8 sums added to as two vectors: the same additions
+// in the same order. Each term is a whole number under 2^53 (the caller sees to it: rows and columns under
+// 2^20), so exact here and in the scalar loop: d r^2 may be formed as d (r^2) rather than (d r) r, and
+// (1, c, r, r^2) row by row by adding (0, 0, 1, 2 r + 1); the same terms, hence the same bits.
+__attribute__((target("avx2"), always_inline)) static inline void SteepColumnInline(
+    const uint8_t* pa, const uint8_t* pb, size_t a_stride, size_t b_stride, int r_first, int r_last, int threshold,
+    int min_d, double u0, double per_row, double bins_per_px, double last_bin, double cc, int base_row,
+    double* moments) {
+  const double rr0 = r_first - base_row;
+  __m256d ones = _mm256_setr_pd(1.0, cc, rr0, rr0 * rr0);  // (1, c, r, r^2) of row r
+  __m256d step = _mm256_setr_pd(0.0, 0.0, 1.0, 2.0 * rr0 + 1.0);
+  const __m256d step_step = _mm256_setr_pd(0.0, 0.0, 0.0, 2.0);
+  const __m128d low = _mm_setzero_pd(), high = _mm_set_sd(last_bin);
+  for (int r = r_first; r <= r_last; ++r) {
+    const int d = LaserDifference(pa[static_cast<size_t>(r) * a_stride], pb[static_cast<size_t>(r) * b_stride], threshold);
+    if (d >= min_d) {
+      // std::clamp(u, 0, last_bin) (u is never NaN: the crossing row is a number), then the bin.
+      const __m128d u = _mm_set_sd((u0 + r * per_row) * bins_per_px);
+      const int64_t b = _mm_cvttsd_si64(_mm_min_sd(_mm_max_sd(u, low), high));
+      double* m = moments + 8 * b;
+      _mm256_storeu_pd(m, _mm256_add_pd(_mm256_loadu_pd(m), _mm256_mul_pd(_mm256_set1_pd(d), ones)));
+      _mm256_storeu_pd(m + 4, _mm256_add_pd(_mm256_loadu_pd(m + 4), ones));
+    }
+    ones = _mm256_add_pd(ones, step);
+    step = _mm256_add_pd(step, step_step);
+  }
+}
+__attribute__((target("avx2"))) void SteepColumnAvx2(const uint8_t* pa, const uint8_t* pb, size_t a_stride,
+                                                    size_t b_stride, int r_first, int r_last, int threshold,
+                                                    int min_d, double u0, double per_row, double bins_per_px,
+                                                    double last_bin, double cc, int base_row, double* moments) {
+  SteepColumnInline(pa, pb, a_stride, b_stride, r_first, r_last, threshold, min_d, u0, per_row, bins_per_px, last_bin,
+                    cc, base_row, moments);
+}
+
+// steep.cc's MeasureRun, its columns [c_first, c_last] (crossing, along, nearest: per column from c_first;
+// on0 / off0: the laser's byte of row 0 and column 0): each column's run of rows bounded as there (the same
+// operations; ceil and floor are exact however they are done), then its sums as SteepColumnAvx2's. Here so
+// that the bounds' roundings are single instructions.
+__attribute__((target("avx2"))) void SteepColumnsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
+                                                     size_t off_stride, int channels, int rows, int c_first,
+                                                     int c_last, const double* crossing, const double* along,
+                                                     const uint32_t* nearest, const SteepColumnFit* fits,
+                                                     int threshold, double shift, double bins_per_px,
+                                                     double last_bin, int base_row, double* moments) {
+  for (int c = c_first; c <= c_last; ++c) {
+    const size_t at = static_cast<size_t>(c - c_first);
+    if (std::isnan(crossing[at])) continue;
+    const SteepColumnFit& f = fits[nearest[at]];
+    const int r_first = std::max(0, static_cast<int>(std::ceil(crossing[at] - f.half_rows)));
+    const int r_last = std::min(rows - 1, static_cast<int>(std::floor(crossing[at] + f.half_rows)));
+    const double cc = c - c_first;
+    const double u0 = along[at] - crossing[at] * f.per_row + shift;
+    SteepColumnInline(on0 + static_cast<ptrdiff_t>(c) * channels, off0 + static_cast<ptrdiff_t>(c) * channels,
+                      on_stride, off_stride, r_first, r_last, threshold, f.min_d, u0, f.per_row, bins_per_px,
+                      last_bin, cc, base_row, moments);
+  }
 }
 
 }  // namespace rotoscan::laser::detail

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 
 #include "extract_steps.h"
@@ -152,6 +153,56 @@ inline uint64_t OutlierBits(const float* raw, int i, int h, double a, double b, 
   uint64_t bits = 0;
   for (int x = -h; x <= h; ++x) bits |= static_cast<uint64_t>(std::abs(raw[i + x] - (a + x * b)) > outlier_px) << (x + h);
   return bits & (((uint64_t{1} << (2 * h + 1)) - 1) & ~(uint64_t{1} << h));
+}
+
+
+// ends.cc's centre across the line (CentreAcross), one row's share: over the row's columns [c_first, c_last]
+// (pa, pb: the frames' row at the laser's channel, a pixel every `step` bytes), the pixels within along_px
+// along the line and `half` across it from t, the line column = foot_c + s (row - r0) through the row r0
+// + dr, whose weight w = d - level is positive: *sum_w += w and *sum_wt += w across, in column order.
+inline void AcrossRowSums(const uint8_t* pa, const uint8_t* pb, int step, int c_first, int c_last, double dr,
+                          double foot_c, double s, double length, double t, double half, double level, int threshold,
+                          double along_px, double* sum_w, double* sum_wt) {
+  double w_sum = *sum_w, wt_sum = *sum_wt;
+  for (int c = c_first; c <= c_last; ++c) {
+    const double dc = c - foot_c;
+    const double along = (dr + s * dc) / length;
+    const double across = (dc - s * dr) / length;
+    if (std::abs(along) > along_px || std::abs(across - t) > half) continue;
+    const int d = LaserDifference(pa[c * step], pb[c * step], threshold);
+    const double w = d - level;
+    if (w <= 0) continue;
+    w_sum += w;
+    wt_sum += w * across;
+  }
+  *sum_w = w_sum;
+  *sum_wt = wt_sum;
+}
+
+
+// steep.cc's pixel sums (MeasureRun), one column: over its rows [r_first, r_last] (pa, pb: the frames' pixel
+// of the column in row 0, rows a_stride / b_stride bytes apart), the pixels whose difference reaches min_d,
+// each into the bin of its along coordinate ((u0 + r per_row) bins_per_px, clamped to [0, last_bin]): its 8
+// sums d, d c, d r, d r^2, 1, c, r, r^2 (c = cc, r relative to base_row) at moments[8 b .. 8 b + 8).
+inline void SteepColumn(const uint8_t* pa, const uint8_t* pb, size_t a_stride, size_t b_stride, int r_first,
+                        int r_last, int threshold, int min_d, double u0, double per_row, double bins_per_px,
+                        double last_bin, double cc, int base_row, double* moments) {
+  for (int r = r_first; r <= r_last; ++r) {
+    const int d = LaserDifference(pa[static_cast<size_t>(r) * a_stride], pb[static_cast<size_t>(r) * b_stride], threshold);
+    if (d < min_d) continue;
+    const double u = (u0 + r * per_row) * bins_per_px;
+    const size_t b = static_cast<size_t>(std::clamp(u, 0.0, last_bin));
+    const double dd = d, rr = r - base_row;
+    double* m = moments + 8 * b;
+    m[0] += dd;
+    m[1] += dd * cc;
+    m[2] += dd * rr;
+    m[3] += dd * rr * rr;
+    m[4] += 1;
+    m[5] += cc;
+    m[6] += rr;
+    m[7] += rr * rr;
+  }
 }
 
 }  // namespace rotoscan::laser::detail::scalar

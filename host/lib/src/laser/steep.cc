@@ -29,18 +29,21 @@
 #include <vector>
 
 #include "extract_steps.h"
+#include "kernels.h"
 
 namespace rotoscan::laser::detail {
 namespace {
 
 // A steep point's fit (RecentreSteepLines): its index, row and column, the parabola column = c0 + s dr +
 // k dr^2 (dr = row - row0) through its stretch, the fit's column at its row, L = sqrt(1 + s^2), the half
-// width across the line, px, and the weights' level (w = d - level where d >= min_d).
+// width across the line, px, and the weights' level (w = d - level where d >= min_d); the half width in rows
+// (half L / |s|) and the along coordinate's change per row (sign(s) / L), as MeasureRun's columns use them.
 struct SteepFit {
   size_t index;
   int row;
   double c0, s, k, fitted, length, half, level;
   int min_d;
+  double half_rows, per_row;
 };
 
 // Sums over the pixels of a stretch of the line's along coordinate, rows relative to the run's first
@@ -50,6 +53,7 @@ struct AlongMoments {
   double d = 0, dc = 0, dr = 0, drr = 0;
   double n = 0, nc = 0, nr = 0, nrr = 0;
 };
+static_assert(sizeof(AlongMoments) == 8 * sizeof(double), "SteepColumn reads a bin as 8 doubles");
 
 // Bins per px along the line, and the columns beyond the points' windows that a run covers.
 constexpr double kSteepBinsPerPx = 2.0;
@@ -61,6 +65,11 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
                const std::vector<LinePoint>& p, const SteepFit* fits, size_t count,
                std::vector<float>* moved) {
   const int rows = on.rows, cols = on.cols, step = on.channels();
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  // The column sums as vectors (SteepColumnAvx2, the same bits), where its terms are exact (rows and
+  // columns under 2^20).
+  const bool avx2_sums = HaveAvx2() && rows <= (1 << 20) && cols <= (1 << 20);
+#endif
   // The columns any point's window reaches: within kSteepAlongPx along the line of its column, i.e.
   // kSteepAlongPx |s| / L columns, and a margin.
   double reach = 0, c_min = fits[0].c0, c_max = fits[0].c0;
@@ -123,35 +132,32 @@ int MeasureRun(const cv::Mat& on, const cv::Mat& off, int channel, int threshold
   const int base_row = fits[0].row;
   thread_local std::vector<AlongMoments> prefix;
   prefix.assign(bins + 1, AlongMoments{});
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  if (avx2_sums) {  // the loop below in one AVX2 function (SteepColumnsAvx2, the same bits)
+    thread_local std::vector<SteepColumnFit> column_fits;
+    column_fits.resize(count);
+    for (size_t j = 0; j < count; ++j) column_fits[j] = {fits[j].half_rows, fits[j].per_row, fits[j].min_d};
+    SteepColumnsAvx2(on.ptr<uint8_t>(0) + channel, on.step[0], off.ptr<uint8_t>(0) + channel, off.step[0], step, rows,
+                     c_first, c_last, crossing.data(), along.data(), nearest.data(), column_fits.data(), threshold,
+                     shift, kSteepBinsPerPx, static_cast<double>(bins - 1), base_row, &prefix[1].d);
+  } else
+#endif
   for (int c = c_first; c <= c_last; ++c) {
     const size_t at = static_cast<size_t>(c - c_first);
     if (std::isnan(crossing[at])) continue;
     const SteepFit& f = fits[nearest[at]];
-    const double half_rows = f.half * f.length / std::abs(f.s);
+    const double half_rows = f.half_rows;
     const int r_first = std::max(0, static_cast<int>(std::ceil(crossing[at] - half_rows)));
     const int r_last = std::min(rows - 1, static_cast<int>(std::floor(crossing[at] + half_rows)));
-    const double per_row = sign / f.length, cc = c - c_first;
+    const double per_row = f.per_row, cc = c - c_first;  // sign / f.length: a run's slopes have one sign
     const double u0 = along[at] - crossing[at] * per_row + shift;  // the along coordinate at row 0
     const int min_d = f.min_d;
     AlongMoments* const bin = prefix.data() + 1;
     const double last_bin = static_cast<double>(bins - 1);
-    for (int r = r_first; r <= r_last; ++r) {
-      const int av = on.ptr<uint8_t>(r)[c * step + channel], bv = off.ptr<uint8_t>(r)[c * step + channel];
-      const int d = LaserDifference(av, bv, threshold);
-      if (d < min_d) continue;
-      const double u = (u0 + r * per_row) * kSteepBinsPerPx;
-      const size_t b = static_cast<size_t>(std::clamp(u, 0.0, last_bin));
-      const double dd = d, rr = r - base_row;
-      AlongMoments& m = bin[b];
-      m.d += dd;
-      m.dc += dd * cc;
-      m.dr += dd * rr;
-      m.drr += dd * rr * rr;
-      m.n += 1;
-      m.nc += cc;
-      m.nr += rr;
-      m.nrr += rr * rr;
-    }
+    const uint8_t* const pa = on.ptr<uint8_t>(0) + c * step + channel;
+    const uint8_t* const pb = off.ptr<uint8_t>(0) + c * step + channel;
+    scalar::SteepColumn(pa, pb, on.step[0], off.step[0], r_first, r_last, threshold, min_d, u0, per_row,
+                        kSteepBinsPerPx, last_bin, cc, base_row, &bin[0].d);
   }
   for (size_t b = 1; b <= bins; ++b) {
     AlongMoments& m = prefix[b];
@@ -294,7 +300,8 @@ int RecentreSteepLines(const cv::Mat& on, const cv::Mat& off, int channel, int t
     // d >= floor(level) + 1 (whatever the peak, a whole number of DN or not). No pixel passes over 255.
     const int min_d = static_cast<int>(std::floor(level)) + 1;
     if (min_d > 255) continue;
-    fits.push_back({i, r0, c0, s, curvature, c0 + x[0], length, half, level, min_d});
+    fits.push_back({i, r0, c0, s, curvature, c0 + x[0], length, half, level, min_d, half * length / std::abs(s),
+                    (s > 0 ? 1.0 : -1.0) / length});
   }
   // Runs of consecutive steep points, each one curve.
   size_t run_first = 0;
