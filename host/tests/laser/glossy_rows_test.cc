@@ -5,7 +5,8 @@
 // and on each the object's rows measured against the renderer's truth with the extractor's own centre
 // (no smoothing) and with simple reference estimators on the same difference row: the centre of mass
 // above 0.15 and above 0.5 of the peak, the middle of the half-maximum extent, the peak of a Gaussian fitted
-// to the unsaturated pixels above 0.15 of the peak (a parabola through ln d, weighted by d^2).
+// to the unsaturated pixels above 0.15 of the peak (a parabola through ln d, weighted by d^2); and the
+// extractor's own centre without the steep step (steep.cc), which makes the difference on clean frames.
 //
 // Per estimator: rows, mean and RMS of the signed error along the row (px; within 2 px of the truth),
 // the share over 1 px, the error's slowly varying part (the mean of its stretch's rows within +-8: its
@@ -208,8 +209,8 @@ Summary Summarise(const Errors& e) {
 
 constexpr const char* kEstimators[] = {"extractor (own)",   "extractor (smoothed)", "smoothed, straight",
                                        "smoothed, order 2", "com 0.15",             "com 0.5",
-                                       "middle at 0.5",     "Gaussian fit"};
-constexpr int kNumEstimators = 8;
+                                       "middle at 0.5",     "Gaussian fit",         "own, no steep step"};
+constexpr int kNumEstimators = 9;
 
 struct SetResult {
   Errors by[kNumEstimators];
@@ -225,11 +226,12 @@ SetResult MeasureVariant(const sim::Scene& scene, int steps) {
   if (!renderer.ok()) return out;
   ExtractOptions own_options;
   own_options.smooth_half_rows = 0;
-  ExtractOptions order2_options, straight_options;
+  ExtractOptions order2_options, straight_options, no_steep_options = own_options;
   order2_options.smooth_order = 2;
+  no_steep_options.steep_across = false;
   straight_options.smooth_curvature = false;
   LineExtractor extractor{ExtractOptions{}}, own_extractor(own_options), order2_extractor(order2_options),
-      straight_extractor(straight_options);
+      straight_extractor(straight_options), no_steep_extractor(no_steep_options);
   for (int step = 0; step < steps; ++step) {
     const double angle = step * 2.0 * 3.14159265358979323846 / steps;
     const sim::RenderedStep frames =
@@ -238,12 +240,13 @@ SetResult MeasureVariant(const sim::Scene& scene, int steps) {
     cv::extractChannel(frames.frames[2], off_red, 2);
     for (int k = 0; k < 2; ++k) {
       const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
-      Line line, own, order2, straight;
+      Line line, own, order2, straight, no_steep;
       EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
       EXPECT_TRUE(straight_extractor.Extract(frames.frames[k], frames.frames[2], &straight).ok());
       EXPECT_TRUE(order2_extractor.Extract(frames.frames[k], frames.frames[2], &order2).ok());
 
       EXPECT_TRUE(own_extractor.Extract(frames.frames[k], frames.frames[2], &own).ok());
+      EXPECT_TRUE(no_steep_extractor.Extract(frames.frames[k], frames.frames[2], &no_steep).ok());
       if (line.points.size() != own.points.size() || order2.points.size() != own.points.size() ||
           straight.points.size() != own.points.size())
         continue;
@@ -254,6 +257,8 @@ SetResult MeasureVariant(const sim::Scene& scene, int steps) {
       cv::extractChannel(frames.frames[k], on_red, 2);
       std::map<int, size_t> point_of_row;
       for (size_t i = 0; i < own.points.size(); ++i) point_of_row[own.points[i].row] = i;
+      std::map<int, double> no_steep_column;  // the steep step only moves points: the same rows
+      for (const LinePoint& q : no_steep.points) no_steep_column[q.row] = q.column;
       const int frame = step;
       for (const auto& [row, crossings] : by_row) {
         if (crossings.size() != 1 || crossings[0]->object == 0) continue;
@@ -275,7 +280,8 @@ SetResult MeasureVariant(const sim::Scene& scene, int steps) {
         const References r = Estimate(d, a, q.column);
         const double values[kNumEstimators] = {q.column, p.column, straight.points[it->second].column,
                                                order2.points[it->second].column, r.com15, r.com50, r.mid50,
-                                               r.gauss};
+                                               r.gauss,
+                                               no_steep_column.count(row) != 0 ? no_steep_column[row] : kNan};
         for (int e = 0; e < kNumEstimators; ++e) out.by[e].Add(frame, k, row, values[e] - t);
       }
     }
@@ -388,6 +394,19 @@ TEST(GlossyRowsTest, EffectsOneAtATime) {
   // 0.399 px (order 2: 0.458 / 0.409); clean, no lobe 0.279 -> 0.237 / 0.290 -> 0.241.
   EXPECT_LT(summary("webcam preset (all on)", 1).rms, summary("webcam preset (all on)", 2).rms - 0.01);
   EXPECT_LT(summary("clean, no lobe", 1).rms, summary("clean, no lobe", 2).rms - 0.02);
+  // On clean frames the own estimate was worse than the plain centre of mass (0.223 / 0.226 px RMS against
+  // 0.161 / 0.158, "clean, no lobe"): the whole difference is the steep step's (steep.cc), at a sphere's
+  // top and bottom, where its line turns towards the row direction (slope 1-30 columns per row) and fades:
+  // there the parabola column(row), fitted over +-8 rows, has under the line's curvature, and the step put
+  // those rows 0.2-1 px off along the row, on the curvature's side (the left laser's +0.54 px on average,
+  // the right's -0.46, on its 320 unsaturated rows at 8 steps; the centre of mass +0.20 / -0.11). Without
+  // the step the own estimate is the centre of mass's (0.169 / 0.167). With the webcam's noise and speckle
+  // the step still wins there (all on, 8 steps: 3.34 % of the rows over 1 px, 0.443 px, against 3.81 % and
+  // 0.446 without it): README, the #15 item of Known gaps. These two checks state the finding; a steep step
+  // that follows the curve (a fit of row against column where the line is steep?) should fail the second.
+  const Summary clean_no_steep = summary("clean, no lobe", 8);
+  EXPECT_LT(std::abs(clean_no_steep.rms - summary("clean, no lobe", 4).rms), 0.02);
+  EXPECT_GT(clean_no_lobe.rms, clean_no_steep.rms + 0.03);
 }
 
 }  // namespace
