@@ -397,8 +397,9 @@ TEST(GlossyRowsTest, EffectsOneAtATime) {
   // On clean frames the own estimate was worse than the plain centre of mass (0.223 / 0.226 px RMS against
   // 0.161 / 0.158, "clean, no lobe"): the whole difference is the steep step's (steep.cc), at a sphere's
   // top and bottom, where its line turns towards the row direction (slope 1-30 columns per row) and fades:
-  // there the parabola column(row), fitted over +-8 rows, has under the line's curvature, and the step put
-  // those rows 0.2-1 px off along the row, on the curvature's side (the left laser's +0.54 px on average,
+  // there the parabola column(row) fitted over +-8 rows bends less than the line (its curvature doubled,
+  // as a trial, took the own estimate to 0.166 px; none: 0.250), and the step put those rows 0.2-1 px off
+  // along the row, on the curvature's side (the left laser's +0.54 px on average,
   // the right's -0.46, on its 320 unsaturated rows at 8 steps; the centre of mass +0.20 / -0.11). Without
   // the step the own estimate is the centre of mass's (0.169 / 0.167). With the webcam's noise and speckle
   // the step still wins there (all on, 8 steps: 3.34 % of the rows over 1 px, 0.443 px, against 3.81 % and
