@@ -158,6 +158,10 @@ constexpr double kGlintUncertaintyPx = 1.6;
 constexpr double kGlintQuality = 0.5;
 // ScoreLineEnds: how many points at either end of a stretch lose quality.
 constexpr int kLineEndRows = 8;
+// WidenAtLineBreaks: a jump of the line over kBreakJumpPx (along the row, against the line's slope on
+// the row before) widens the uncertainty of the points within kBreakReachRows rows of it to the jump.
+constexpr float kBreakJumpPx = 3.0f;
+constexpr int kBreakReachRows = 4;
 // RecentreSteepLines (steep.cc): a point is steep where its line's least-squares slope over the points
 // within kSteepFitRows rows either side (a stretch: rows at most 2 apart, at most kSteepMaxStepPx columns
 // per row; a parabola through at least kSteepMinPoints) is at least kSteepSlope columns per row; its centre is the
@@ -332,6 +336,13 @@ void ScoreAlbedoDivision(std::vector<LinePoint>* points);
 // a line ends at a depth edge, a rim or a silhouette, where the sheet's footprint is cut and the profile
 // partial. Ends at the frame's first or last 2 rows (of `rows`) are the frame's, and keep their quality.
 void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* points);
+
+// Last of all (after the smoothing: the centres are final and the steps before read the uncertainty): where
+// the line jumps between consecutive rows (at most 2 apart) by more than kBreakJumpPx against its slope on
+// the row before (the row after where there is none before), the points within kBreakReachRows rows of
+// the jump get an uncertainty of at least the jump (the row may have taken either line's light), and
+// their quality lowered to match (as ScoreAlbedoDivision). The centres are not changed.
+void WidenAtLineBreaks(std::vector<LinePoint>* points);
 
 // After ScorePoints: flags the points of a compact overexposed stretch as glints (kFlagGlint), lowers
 // their quality and widens their uncertainty; returns how many. `rows`: the frame's.

@@ -427,6 +427,34 @@ void ScoreLineEnds(double max_jump_px, int rows, std::vector<LinePoint>* line_po
   }
 }
 
+void WidenAtLineBreaks(std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& p = *line_points;
+  const size_t n = p.size();
+  // The column change per row from point k - 1 to point k, where they are at most 2 rows apart.
+  auto step = [&p](size_t k, float* per_row) {
+    const int gap = p[k].row - p[k - 1].row;
+    if (gap > 2) return false;
+    *per_row = (p[k].column - p[k - 1].column) / static_cast<float>(gap);
+    return true;
+  };
+  for (size_t k = 1; k < n; ++k) {
+    float here = 0.0f, slope = 0.0f;
+    if (!step(k, &here)) continue;
+    if (!(k >= 2 && step(k - 1, &slope)) && !(k + 1 < n && step(k + 1, &slope))) slope = 0.0f;
+    const float jump = std::abs(here - slope) * static_cast<float>(p[k].row - p[k - 1].row);
+    if (!(jump > kBreakJumpPx)) continue;
+    const int first = p[k - 1].row - kBreakReachRows, last = p[k].row + kBreakReachRows;
+    size_t i = k - 1;
+    while (i > 0 && p[i - 1].row >= first) --i;
+    for (; i < n && p[i].row <= last; ++i) {
+      const double u = p[i].uncertainty_px;
+      if (!(jump > u)) continue;
+      p[i].uncertainty_px = jump;
+      p[i].quality = static_cast<float>(p[i].quality * (1.0 + u * u) / (1.0 + static_cast<double>(jump) * jump));
+    }
+  }
+}
+
 int FlagGlints(const PointTerms* terms, int rows, std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& points = *line_points;
   const size_t n = points.size();
