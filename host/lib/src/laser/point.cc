@@ -101,6 +101,32 @@ double AlbedoInverseDivisor(double blurred, double floor_dn) {
   return table.v[i] + t * (table.v[i + 1] - table.v[i]);
 }
 
+// The laser-off row's edge over [lo, hi] (kAlbedoSharpEdgeNum): its range and its steepest two-pixel
+// change, and whether the laser-on row saturates there. AlbedoNormalisedCentre and ClippedAlbedoCentre
+// judge the same window by it.
+struct OffEdge {
+  int high = 0, low = 255, steepest = 0;
+  bool saturated = false;
+  bool Sharp() const { return kAlbedoSharpEdgeDen * steepest >= kAlbedoSharpEdgeNum * (high - low); }
+};
+OffEdge ScanOffEdge(const uint8_t* a, const uint8_t* b, int lo, int hi) {
+  OffEdge e;
+  for (int i = lo; i <= hi; ++i) {
+    e.saturated |= a[i] == 255;
+    e.high = std::max(e.high, int{b[i]});
+    e.low = std::min(e.low, int{b[i]});
+    if (i > lo + 1) e.steepest = std::max(e.steepest, std::abs(int{b[i]} - int{b[i - 2]}));
+  }
+  return e;
+}
+
+// A point's uncertainty raised to `with`, its quality lowered as ScorePoints' 1 / (1 + u^2) would have it.
+void WidenUncertainty(double with, LinePoint* p) {
+  const double u = p->uncertainty_px;
+  p->uncertainty_px = static_cast<float>(with);
+  p->quality = static_cast<float>(p->quality * (1.0 + u * u) / (1.0 + with * with));
+}
+
 }  // namespace
 
 bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
@@ -135,16 +161,9 @@ double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t*
   int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
   if (hi - lo + 1 > kAlbedoMaxWindow) return -1.0;
   // The edge's sharpness (kAlbedoSharpEdgeNum) and whether the laser-on row saturates there.
-  int high = 0, low = 255, steepest = 0;
-  bool saturated = false;
-  for (int i = lo; i <= hi; ++i) {
-    saturated |= a[i] == 255;
-    high = std::max(high, int{b[i]});
-    low = std::min(low, int{b[i]});
-    if (i > lo + 1) steepest = std::max(steepest, std::abs(int{b[i]} - int{b[i - 2]}));
-  }
-  const double floor_dn = std::max(3.0, 0.05 * high);
-  const bool sharp = kAlbedoSharpEdgeDen * steepest >= kAlbedoSharpEdgeNum * (high - low) && !saturated;
+  const OffEdge edge = ScanOffEdge(a, b, lo, hi);
+  const double floor_dn = std::max(3.0, 0.05 * edge.high);
+  const bool sharp = edge.Sharp() && !edge.saturated;
   // The ratio's peak is looked for within the extent widened by half its width each side (by
   // kAlbedoSharpReach - 1/2 widths where the edge is sharp).
   int reach2 = width;  // doubled
@@ -214,14 +233,9 @@ double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b,
                            int last) {
   const int width = last - first + 1;
   const int lo = std::max(0, first - width), hi = std::min(cols - 1, last + width);
-  int high = 0, low = 255, steepest = 0;
-  for (int i = lo; i <= hi; ++i) {
-    high = std::max(high, int{b[i]});
-    low = std::min(low, int{b[i]});
-    if (i > lo + 1) steepest = std::max(steepest, std::abs(int{b[i]} - int{b[i - 2]}));
-  }
-  if (kAlbedoSharpEdgeDen * steepest < kAlbedoSharpEdgeNum * (high - low)) return -1.0;
-  const double floor_dn = std::max(3.0, 0.05 * high);
+  const OffEdge edge = ScanOffEdge(a, b, lo, hi);
+  if (!edge.Sharp()) return -1.0;
+  const double floor_dn = std::max(3.0, 0.05 * edge.high);
   auto albedo = [&](int i) { return std::max(static_cast<double>(b[i]), floor_dn); };
   // The saturated run (the first and last laser-on pixel at 255 in the extent) and the clip level T: the
   // lowest ratio that any of its pixels is known to reach, (255 - b) / b.
@@ -390,13 +404,9 @@ void ScoreAlbedoDivision(std::vector<LinePoint>* points) {
   for (LinePoint& p : *points) {
     if (!(p.flags & kFlagAlbedoEdge)) continue;
     // The uncertainty before (its steep-line growth kept) and after the division's residual is added,
-    // larger where the difference is narrower than the line's usual width (a dark cell cuts the line);
-    // the quality falls as ScorePoints' 1 / (1 + u^2) would have it.
-    const double u = p.uncertainty_px;
+    // larger where the difference is narrower than the line's usual width (a dark cell cuts the line).
     const double residual = kAlbedoResidualPx * std::max(1.0, usual / std::max(1.0, static_cast<double>(p.width)));
-    const double with = std::hypot(u, residual);
-    p.uncertainty_px = static_cast<float>(with);
-    p.quality = static_cast<float>(p.quality * (1.0 + u * u) / (1.0 + with * with));
+    WidenUncertainty(std::hypot(static_cast<double>(p.uncertainty_px), residual), &p);
   }
 }
 
@@ -447,10 +457,7 @@ void WidenAtLineBreaks(std::vector<LinePoint>* line_points) {
     size_t i = k - 1;
     while (i > 0 && p[i - 1].row >= first) --i;
     for (; i < n && p[i].row <= last; ++i) {
-      const double u = p[i].uncertainty_px;
-      if (!(jump > u)) continue;
-      p[i].uncertainty_px = jump;
-      p[i].quality = static_cast<float>(p[i].quality * (1.0 + u * u) / (1.0 + static_cast<double>(jump) * jump));
+      if (jump > p[i].uncertainty_px) WidenUncertainty(jump, &p[i]);
     }
   }
 }
