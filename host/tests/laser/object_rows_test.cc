@@ -862,7 +862,7 @@ TEST(ObjectRowsTest, FaintStretchFoundPastItsEnd) {
               steps, lit, missed_without, missed_with, extended, extended_far, std::sqrt(sum2 / near),
               extended_over, covered);
   std::printf(
-      "  the same rows as the end step placed them (before the steep step and the smoothing): RMS %.2f px "
+      "  the same rows as the end step places them on the line without the gap step: RMS %.2f px "
       "across (each at most 3); of the %d within 3 px, RMS %.2f px, %d over 1 px\n",
       std::sqrt(own_sum2 / std::max(1, extended)), own_near, std::sqrt(own_near_sum2 / std::max(1, own_near)),
       own_over);
@@ -884,11 +884,16 @@ TEST(ObjectRowsTest, FaintStretchFoundPastItsEnd) {
   // 1 px (main a85a763: 107 filled, 10 over 3 px, 0.77 px, 19 over 1 px; as placed 0.39 px, 1 of 106).
   // 8 steps: 267 filled, 5 over 3 px, 0.80 px, 47 over 1 px, 253 of 262 within; as placed 0.62 px, 26 of 266
   // over 1 px (main: 325, 12, 0.86 px, 64; as placed 0.97 px, 83 of 317).
-  EXPECT_LE(missed_with, missed_without / 2);
+  // Thirteenth session (the end step after the smoothing, through the smoothed points, up to 24 rows past the
+  // end; extract.cc, gaps.cc): 3 steps, 170 -> 39 without a point; 131 filled, 1 over 3 px, the others RMS
+  // 0.53 px, 10 over 1 px, 128 within their uncertainty (main 812a748: 66; 93 filled, 0.77 px, 16 over 1 px:
+  // the limits on missed_with, the RMS and extended_over below fail there).
+  EXPECT_LE(missed_with, missed_without / 3);
   EXPECT_LE(own_over, own_near / 10);
   EXPECT_GE(extended, 80);
   EXPECT_LE(extended_far, extended / 8);
-  EXPECT_LE(std::sqrt(sum2 / near), 0.85);
+  EXPECT_LE(std::sqrt(sum2 / near), 0.65);
+  EXPECT_LE(extended_over, near / 10);
   EXPECT_GE(covered, near * 90 / 100);
 }
 
@@ -1065,6 +1070,10 @@ TEST(ObjectRowsTest, TexturedMissedRowsByPlace) {
     EXPECT_LE(gap_default, gap_without / 10) << "f/" << f_number;
     EXPECT_GT(added, 0) << "f/" << f_number;
     EXPECT_LE(added_over, added / 4) << "f/" << f_number;
+    // Issue 15's found-row target with the end step (thirteenth session: 3 steps, f/4 / f/2.4, 98.50 / 98.85 %;
+    // main 812a748, whose end step ran before the steep step and the smoothing and stopped 16 rows past the
+    // end: 97.89 / 98.40 %).
+    EXPECT_GE(missed[2].lit - missed[2].missed, missed[2].lit * 98 / 100) << "f/" << f_number;
   }
 }
 

@@ -1044,7 +1044,7 @@ TEST(GapFillTest, NoEndRunsOnLaserOffPairs) {
   }
   std::printf("stretch ends offered on laser-off pairs: %d (up to %d rows each); rows filled at the end step's z "
               "4 / 5 / 6 / 7 / 8: %d / %d / %d / %d / %d; on the laser pairs at 8: %d\n",
-              ends, 16, false_rows[0], false_rows[1], false_rows[2], false_rows[3], false_rows[4], real_rows);
+              ends, 24, false_rows[0], false_rows[1], false_rows[2], false_rows[3], false_rows[4], real_rows);
   EXPECT_GT(ends, 80);
   EXPECT_EQ(detail::kEndMinZ, 8.0);
   EXPECT_EQ(false_rows[4], 0);

@@ -390,7 +390,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
                  std::vector<LinePoint>* points, double min_z = kGapMinZ, bool extend_ends = true);
 // FillLineGaps's second part (gaps.cc): a stretch's faint continuation past its end, along a straight line
 // from its end, where the matched filter summed over the run of rows reaches min_z (kEndMinZ at the gap
-// step's kGapMinZ). Returns how many rows it filled. CountLineEnds: the ends it looks past.
+// step's kGapMinZ). Returns how many rows it filled. CountLineEnds: the ends it looks past. The extractor
+// (ExtractOptions::extend_line_ends) calls it on its own after the smoothing, not through FillLineGaps.
 constexpr double kEndMinZ = 8.0;
 int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
                    std::vector<LinePoint>* points, double min_z = kEndMinZ);

@@ -74,7 +74,8 @@
 // machine-vision preset's clean frames the row pass finds what there is.
 //
 // Then the stretches' ends are looked past (ExtendLineEnds, below: a faint straight continuation summed over
-// its run of rows).
+// its run of rows), by the extractor after the smoothing (extract.cc; FillLineGaps's extend_ends for callers
+// of its own).
 #include <algorithm>
 #include <cmath>
 #include <iterator>
@@ -201,7 +202,28 @@ struct Curve {
 // (the end step on) against /1: ~+55 us on main, ~+75 us now (the refinement ~20 us of a frame, load 4-7:
 // noisy). False rows on laser-off pairs (GapFillTest.NoEndRunsOnLaserOffPairs) at z 4 / 5 / 6 / 7 / 8: 2 / 0
 // / 0 / 0 / 0 (were 16 / 0 / 0 / 0 / 0).
-constexpr int kEndMaxRows = 16;
+// Thirteenth session: the extractor runs this step after the smoothing (extract.cc), no longer inside
+// FillLineGaps before the steep step: its lines pass through the stretch's smoothed points, and its rows stay
+// where it places them (the steep step and the smoothing had moved them within their uncertainty, i.e. by up
+// to ~2 px across: the 47 of 262 over 1 px above against 26 as placed). And a run goes on up to kEndMaxRows 24
+// rows past the end (was 16): the object's flat top, where most of these rows lie, runs ~20 rows past the
+// side's end (rows ~320-340 of the textured set), and at 16 its far rows were left. `bench accuracy
+// --extend-line-ends` (8 steps, all lit rows, across), main 812a748 -> after the smoothing -> and 24 rows:
+// textured f/4 found 97.53 -> 97.75 -> 98.23 %, over 1 px 1.664 -> 1.533 -> 1.568 % (the default's 96.38 %,
+// 1.425 %); f/2.4 97.96 -> 97.95 -> 98.25 %, 1.964 -> 1.820 -> 1.808 % (default 96.47 %, 1.664 %); 20 rows:
+// 98.01 %, 1.557 % / 98.04 %, 1.760 %; 32 rows: 98.42 %, 1.652 % / 98.25 %, 1.868 %. Glossy f/4 98.17 %,
+// 1.672 % (default 98.14 %, 1.657 %), f/2.4 as the default (98.87 %, 1.270 %). FaintStretchFoundPastItsEnd (3
+// steps): 131 filled, RMS 0.53 px across, 10 over 1 px (was 93, 0.77 px, 16). Tried, not kept (same bench):
+// the two halves of a run each placed by the Gaussian filter and the line drawn through them, f/4 / f/2.4
+// over 1 px 1.700 / 2.143 % (their offsets are noisier than the slope's error); a run rejected where the
+// halves disagree by over 1 px (0.6 px), found 97.82 / 97.05 % (97.15 / 96.73 %); the refinement over 2 or 3
+// grid steps of angle, 1.700 / 1.856 % and 1.736 / 1.964 %; finer angle steps (4 or 8 a step), no change;
+// the stretch's light left out to 3 or 4 half widths along (d0), 97.93 % / 1.545 %, 98.05 % / 1.736 % and
+// 97.63 / 97.92 % found; a row's own z 2.5 (1.5), 98.02 / 98.04 % found, 1.509 / 1.772 % (98.38 / 98.50 %,
+// 1.604 / 1.844 %); the anchor at 0.3 (0.8) of the median peak, 97.98 / 98.10 %, 1.473 / 1.820 % (98.56 /
+// 98.44 %, 1.820 / 2.047 %). The rows over 1 px that are left are runs whose slope is off by 1-3 px per row
+// (most through an anchor of 30-80 DN, against 110-190 for the good runs, at the object's top corner).
+constexpr int kEndMaxRows = 24;
 constexpr int kEndMinRows = 4;
 constexpr int kEndStretchRows = 16;
 constexpr int kEndMinPoints = 6;
