@@ -221,8 +221,11 @@ struct Curve {
 // the stretch's light left out to 3 or 4 half widths along (d0), 97.93 % / 1.545 %, 98.05 % / 1.736 % and
 // 97.63 / 97.92 % found; a row's own z 2.5 (1.5), 98.02 / 98.04 % found, 1.509 / 1.772 % (98.38 / 98.50 %,
 // 1.604 / 1.844 %); the anchor at 0.3 (0.8) of the median peak, 97.98 / 98.10 %, 1.473 / 1.820 % (98.56 /
-// 98.44 %, 1.820 / 2.047 %). The rows over 1 px that are left are runs whose slope is off by 1-3 px per row
-// (most through an anchor of 30-80 DN, against 110-190 for the good runs, at the object's top corner).
+// 98.44 %, 1.820 / 2.047 %); a row placed only where its own Gaussian filter peaks within 1 / 1.5 / 2 px
+// across of the line, f/4 97.71 / 97.89 / 98.08 % found, 1.509 / 1.509 / 1.545 %, f/2.4 97.75 / 97.98 / 98.16 %,
+// 1.748 / 1.784 / 1.796 % (it drops good rows about as often as bad ones). The rows over 1 px that are left
+// are runs whose slope is off by 1-3 px per row (most through an anchor of 30-80 DN, against 110-190 for the
+// good runs, at the object's top corner).
 constexpr int kEndMaxRows = 24;
 constexpr int kEndMinRows = 4;
 constexpr int kEndStretchRows = 16;
