@@ -75,6 +75,23 @@ constexpr int kAlbedoStepDn = 4;
 // POV-Ray's and our unblurred renderer's checker rows 0.9-1 (7 of ~2,400 under 0.8); the webcam sets'
 // divided rows (2 steps, both scenes, 1,416 rows) 0.45-0.6, 8 at 0.8 or more.
 constexpr int kAlbedoSharpEdgeNum = 4, kAlbedoSharpEdgeDen = 5;
+// A bright feature with only kAlbedoNarrowBrightPx (not kAlbedoMinLevelPx) pixels above the middle of the
+// range is divided out too where the row is blurred (its steepest two-pixel change under
+// kAlbedoSharpEdgeNum / kAlbedoSharpEdgeDen of the range) and the line's peak is at least
+// kAlbedoNarrowMinPeakDn (issue 15, rfalbedo3). On the textured webcam set such a feature is a sliver of a
+// white cell in the line's flank (the cylinder's cells foreshortened; 20-27 DN over a 5-7 DN dark cell in
+// the red channel, which the blur leaves 2 px above the middle), and the undivided centre was pulled ~1 px
+// towards it (the set's "texture not divided" rows over 1 px, 7 of 66 at f/4 and 8 of 55 at f/2.4, 8 steps).
+// The rows so newly divided, per row without smoothing, across, over 1 px / RMS (clipped at 2 px), 8 steps
+// f/4: 28 -> 12 of 73 / 0.97 -> 0.69 px; f/2.4: 22 -> 3 of 63 / 0.91 -> 0.49 px; on angles not tuned on,
+// 6 steps 8 -> 6 of 68 / 0.60 -> 0.50 and 12 -> 1 of 52 / 0.75 -> 0.46; 7 steps 16 -> 9 of 87 / 0.76 ->
+// 0.57 and 18 -> 0 of 105 / 0.73 -> 0.37. Not in a sharp row: there a 2 px feature is resolved, a texel
+// or a lamp's highlight, which the laser does not share (RealFramesTest.DesignStatisticsWithNotches...:
+// 8 of its 400 rows over 1 px if divided). Not under a weak line: on the glossy set's table (peaks 9-14 DN)
+// the rows so divided were no better (6 steps f/4: 114 rows, 57 closer and 57 further, RMS 0.397 -> 0.413
+// px; f/2.4 25 rows, 19 further); with the 30 DN floor the glossy set has none.
+constexpr int kAlbedoNarrowBrightPx = 2;
+constexpr int kAlbedoNarrowMinPeakDn = 30;
 // Where the edge is sharp the window reaches kAlbedoSharpReach half-maximum widths beyond the extent (the
 // blurred rule's 1 cut the line where the extent is only the bright side's part: a step 2 px from the
 // centre of a line of sigma 4 px left the centre +1.3 px towards the bright side, 4 px +3.1 px; 2 widths
@@ -303,8 +320,9 @@ struct PointTerms {
   int foot;                 // kCenterOfMass: the centre of mass's run, px (FlagGlints); else 0
 };
 
-// Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line).
-bool AlbedoEdgeInside(const uint8_t* b, int first, int last);
+// Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line); with
+// narrow_bright, a bright level only kAlbedoNarrowBrightPx wide counts where the row is blurred.
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright = false);
 // The centre of mass of the difference d divided by the laser-off row b (blurred, or itself where its edge
 // is sharp and the laser-on row a does not saturate: kAlbedoSharpEdgeNum), over the half-maximum extent
 // [first, last] widened by its width each side (kAlbedoSharpReach widths where sharp); negative when it

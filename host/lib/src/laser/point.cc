@@ -129,7 +129,7 @@ void WidenUncertainty(double with, LinePoint* p) {
 
 }  // namespace
 
-bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright) {
   if (last - first < 3) return false;
   const ByteRange range = MinMaxRange(b, first, last);  // kernels.h
   const int low = range.low, high = range.high;
@@ -146,11 +146,18 @@ bool AlbedoEdgeInside(const uint8_t* b, int first, int last) {
   // red channel does not resolve a narrower feature (4:2:0 chroma and demosaicing halve its resolution,
   // the optics blur it), so the division would only add the blurs' mismatch; and a small bright spot of
   // the laser-off frame may be a lamp's highlight, which the laser, coming from elsewhere, does not share
-  // (RealFramesTest.DesignStatisticsWithNotches...: a 2 px texel).
+  // (RealFramesTest.DesignStatisticsWithNotches...: a 2 px texel). But with narrow_bright a bright level
+  // kAlbedoNarrowBrightPx wide where the row is blurred: a white cell's sliver (extract_steps.h).
   const int middle = high + low;  // doubled
-  int above = 0;
-  for (int i = first; i <= last; ++i) above += 2 * b[i] > middle;
-  return above >= kAlbedoMinLevelPx && last - first + 1 - above >= kAlbedoMinLevelPx;
+  int above = 0, steepest2 = 0;
+  for (int i = first; i <= last; ++i) {
+    above += 2 * b[i] > middle;
+    if (i >= first + 2) steepest2 = std::max(steepest2, std::abs(int{b[i]} - int{b[i - 2]}));
+  }
+  if (last - first + 1 - above < kAlbedoMinLevelPx) return false;
+  if (above >= kAlbedoMinLevelPx) return true;
+  return narrow_bright && above >= kAlbedoNarrowBrightPx &&
+         kAlbedoSharpEdgeDen * steepest2 < kAlbedoSharpEdgeNum * (high - low);
 }
 
 double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last) {
@@ -282,8 +289,9 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   }
   if (column < 0) return false;
   bool albedo_edge = false;
-  if (o.estimator == Estimator::kCenterOfMass && AlbedoEdgeInside(b, std::max(0, c.com_first - kAlbedoMinLevelPx),
-                                                                 std::min(cols - 1, c.com_last + kAlbedoMinLevelPx))) {
+  if (o.estimator == Estimator::kCenterOfMass &&
+      AlbedoEdgeInside(b, std::max(0, c.com_first - kAlbedoMinLevelPx), std::min(cols - 1, c.com_last + kAlbedoMinLevelPx),
+                       c.peak >= kAlbedoNarrowMinPeakDn)) {
     // The albedo changes inside the line (texture, a dark-and-white edge): the reflection is the laser's
     // profile times the albedo, which pulls the centre of mass towards the brighter side by up to a
     // quarter of the width. The centre of the profile divided by the albedo as the laser-off frame
