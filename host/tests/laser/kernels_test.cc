@@ -258,6 +258,59 @@ TEST(KernelsTest, ScorePointsAvx2MatchesScalar) {
   }
 }
 
+// AlbedoBlurredRatioAvx2 against the portable AlbedoBlurredRatioAt, every ratio bit for bit (in double: the
+// centre of mass that reads them rounds its result to a float column, which would hide a last-bit
+// difference): random laser-off rows (dark cells at the division's floor and below, bright ones, noise, edges
+// of every height), random differences, floors from 3 to 12.75 DN (AlbedoNormalisedCentre's), runs of 4 to
+// 64 pixels anywhere the blur lies inside the row; and AlbedoBlurredRatio, which runs the kernel on a run's
+// inner part, against the portable ratio on runs that reach the row's ends.
+TEST(KernelsTest, AlbedoBlurredRatioAvx2MatchesPortable) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(53);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::uniform_int_distribution<int> byte(0, 255);
+  int floored = 0, above = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    const int cols = std::uniform_int_distribution<int>(1, 120)(rng);
+    std::vector<uint8_t> b(static_cast<size_t>(cols)), d(static_cast<size_t>(cols));
+    int level = byte(rng);
+    for (int i = 0; i < cols; ++i) {
+      if (unit(rng) < 0.1) level = unit(rng) < 0.5 ? std::uniform_int_distribution<int>(0, 6)(rng) : byte(rng);
+      b[static_cast<size_t>(i)] = static_cast<uint8_t>(std::clamp(level + byte(rng) % 7 - 3, 0, 255));
+      d[static_cast<size_t>(i)] = static_cast<uint8_t>(byte(rng));
+    }
+    const double floor_dn = std::max(3.0, 0.05 * byte(rng));
+    std::vector<double> portable(static_cast<size_t>(cols));
+    for (int i = 0; i < cols; ++i) {
+      portable[static_cast<size_t>(i)] = AlbedoBlurredRatioAt(d.data(), b.data(), cols, i, floor_dn);
+      const double blurred_floor = d[static_cast<size_t>(i)] * std::pow(floor_dn, -kAlbedoExponent);
+      (std::abs(portable[static_cast<size_t>(i)] - blurred_floor) <= 1e-4 * blurred_floor ? floored : above) += 1;
+    }
+    // The kernel alone, on a run whose blur lies inside the row.
+    if (cols >= 2 * kAlbedoRadius + 4) {
+      const int lo = std::uniform_int_distribution<int>(kAlbedoRadius, cols - kAlbedoRadius - 4)(rng);
+      const int count = 4 * std::uniform_int_distribution<int>(1, (cols - kAlbedoRadius - lo) / 4)(rng);
+      std::vector<double> ratio(static_cast<size_t>(count), -1.0);
+      AlbedoBlurredRatioAvx2(d.data(), b.data(), lo, count, floor_dn, ratio.data());
+      for (int j = 0; j < count; ++j)
+        ASSERT_EQ(0, std::memcmp(&ratio[static_cast<size_t>(j)], &portable[static_cast<size_t>(lo + j)], sizeof(double)))
+            << "trial " << trial << " pixel " << lo + j << ": " << ratio[static_cast<size_t>(j)] << " against "
+            << portable[static_cast<size_t>(lo + j)];
+    }
+    // The dispatching function on any run, the row's ends included.
+    const int lo = std::uniform_int_distribution<int>(0, cols - 1)(rng);
+    const int hi = std::uniform_int_distribution<int>(lo, cols - 1)(rng);
+    std::vector<double> ratio(static_cast<size_t>(hi - lo + 1), -1.0);
+    AlbedoBlurredRatio(d.data(), b.data(), cols, lo, hi, floor_dn, ratio.data());
+    for (int i = lo; i <= hi; ++i)
+      ASSERT_EQ(0, std::memcmp(&ratio[static_cast<size_t>(i - lo)], &portable[static_cast<size_t>(i)], sizeof(double)))
+          << "trial " << trial << " run [" << lo << ", " << hi << "] pixel " << i;
+  }
+  // Both sides of the floor were exercised.
+  EXPECT_GT(floored, 1000);
+  EXPECT_GT(above, 10000);
+}
+
 // AcrossRowSumsAvx2 against its portable namesake, both sums bit for bit (in double, before the step rounds
 // its result to a float column): random rows (saturated pixels, noise), lines of either slope through them
 // at random offsets, windows cut at any column (runs of 0 to 40 columns, so every remainder of 4), gray and

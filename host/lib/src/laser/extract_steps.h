@@ -320,6 +320,18 @@ struct PointTerms {
   int foot;                 // kCenterOfMass: the centre of mass's run, px (FlagGlints); else 0
 };
 
+// The blurred division of AlbedoNormalisedCentre: ratio[i - lo] = d[i] over the laser-off row b blurred by
+// kAlbedoBlurPx (radius kAlbedoRadius, clipped at the row's ends) to the power kAlbedoExponent, for i in
+// [lo, hi] (the AVX2 path where the CPU has it); AlbedoBlurredRatioAt is one pixel's, portable. The blur's
+// weights, and the table of blurred^-kAlbedoExponent in steps of 1 / kAlbedoPowerSteps DN (0..256 DN and
+// one more) that it interpolates, are point.cc's.
+constexpr int kAlbedoRadius = 3;
+constexpr int kAlbedoPowerSteps = 16;
+void AlbedoBlurredRatio(const uint8_t* d, const uint8_t* b, int cols, int lo, int hi, double floor_dn,
+                        double* ratio);
+double AlbedoBlurredRatioAt(const uint8_t* d, const uint8_t* b, int cols, int i, double floor_dn);
+const double* AlbedoBlurWeights();
+const float* AlbedoPowerTableValues();
 // Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line); with
 // narrow_bright, a bright level only kAlbedoNarrowBrightPx wide counts where the row is blurred.
 bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright = false);

@@ -90,6 +90,11 @@ __attribute__((target("avx2"))) void FlaggedOutliersAvx2(const float* raw, const
 __attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, const double* pjy, const double* pjjy, int k0, int k1, int h,
                            bool slope, double inv_s0, double inv_s2, double origin, double* fit_a, double* fit_b,
                            float* af, float* bf);
+// AlbedoBlurredRatio (point.cc) of the pixels [lo, lo + count), count a multiple of 4, whose blur lies inside
+// the row (lo >= kAlbedoRadius, lo + count - 1 + kAlbedoRadius < the row's width), 4 at a time, bit for bit
+// as AlbedoBlurredRatioAt: into ratio[0, count).
+__attribute__((target("avx2"))) void AlbedoBlurredRatioAvx2(const uint8_t* d, const uint8_t* b, int lo, int count,
+                                                            double floor_dn, double* ratio);
 // ScorePoints (point.cc) of the points [0, n - n % 4), 4 at a time, bit for bit; returns how many.
 __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* terms, const FrameScale& frame, LinePoint* points,
                                                        size_t n);
