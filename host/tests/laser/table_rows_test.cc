@@ -86,6 +86,9 @@ struct PartRows {
   // junction; the nearer of the two), by that distance (0: the last row before it): found, over 1 px
   // across, sum of squares across (issue 15, thirteenth session).
   int near_found[2][8] = {}, near_over[2][8] = {};
+  // The missed rows by place: within 8 rows of the truth's end, of the other part's rows, or further
+  // (mid-line); the mid-line ones by the true line's slope under 2 / 2-4 / over 4 columns per row.
+  int missed_near_end = 0, missed_near_other = 0, missed_mid_slope[3] = {0, 0, 0};
   double near_sum2[2][8] = {};
   int steep_rows = 0, steep_clean_centre_over = 0, steep_clean_point_over = 0, steep_raw_within = 0,
       steep_off_within = 0, steep_unc_under = 0;
@@ -516,6 +519,28 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
           continue;
         }
         ++part.missed_by_signal[Bin(sigmas)];
+        {
+          int d_end = 99, d_other = 99;
+          double slope = 0;
+          for (int d = 1; d <= 8; ++d)
+            for (int dir : {-1, 1}) {
+              const auto n = all_by_row.find(row + dir * d);
+              if (n == all_by_row.end()) {
+                d_end = std::min(d_end, d);
+              } else if (object_row[row + dir * d] != is_object) {
+                d_other = std::min(d_other, d);
+              } else if (d == 1) {
+                slope = std::max(slope, std::abs(n->second[0] - columns[0]));
+              }
+            }
+          if (d_end <= 8 && d_end <= d_other) {
+            ++part.missed_near_end;
+          } else if (d_other <= 8) {
+            ++part.missed_near_other;
+          } else {
+            ++part.missed_mid_slope[slope < 2 ? 0 : slope < 4 ? 1 : 2];
+          }
+        }
         bool above = false, below = false;
         for (int dr = 1; dr <= 16; ++dr) {
           const auto a = found.find(row - dr), b = found.find(row + dr);
@@ -578,6 +603,10 @@ void Print(const char* name, const PartRows& p) {
       "within 1 px without the steep step %d; uncertainty under the error along the row %d\n",
       p.steep_rows, p.steep_clean_centre_over, p.steep_clean_point_over, p.steep_raw_within,
       p.steep_off_within, p.steep_unc_under);
+  std::printf("         missed by place: within 8 rows of the line's end %d, of the other part's rows %d, mid-line "
+              "by slope < 2 / 2-4 / > 4 px per row %d / %d / %d\n",
+              p.missed_near_end, p.missed_near_other, p.missed_mid_slope[0], p.missed_mid_slope[1],
+              p.missed_mid_slope[2]);
   for (int kind = 0; kind < 2; ++kind) {
     std::printf("         found rows 0..7 rows from %s: found / over 1 px / RMS across:",
                 kind ? "the other part's rows" : "the line's end");
