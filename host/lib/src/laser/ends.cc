@@ -189,4 +189,156 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
   return count;
 }
 
+// RecentreJunctionRows (extract_steps.h): where a bright line meets the table's faint steep line (the
+// object's foot on the table), the faint line's first rows past the corner are put on its own straight
+// line from further in.
+//
+// Why (issue 15, thirteenth session; TableRowsTest.MissedRowsBySignal's rows by distance to the other
+// part): the table's rows within 4 rows of the object's line held 10 of glossy's 34 table rows over 1 px
+// and 26 of textured's 41 (8 steps x 2 lasers, f/4). There the object's line, 100-200 DN against the table
+// line's ~13 DN, ends on the table: its blur reaches 3-5 rows past its last row, and each of those rows'
+// profile is the object's light more than the table's (their noise-free centre of mass 2-5 px from the
+// truth along the row, the noisy point on the object's line or between). No centre measured in those rows
+// can find the table's line; its interior can: the table top is flat, its line straight in the image.
+//
+// The step: for each point b and each direction along its stretch (steep.cc's joined rows), the interior
+// is the stretch's points kJunctionSkipRows to kJunctionSkipRows + kEndFitRows rows from b (at least half
+// of kEndFitRows points). Where b's peak is at least kJunctionRatio times the interior's median peak, that
+// median is at most kJunctionDimMax times the frame's threshold (a faint line: the object's dimmer parts
+// next to a highlight were moved off their curve when it was not asked for), the interior's straight fit is
+// steep (kSteepSlope) and passes ends.cc's residual test, and the bright side (b's stretch within
+// kJunctionSideRows rows beyond b, at least 3 points) runs at a slope at least kJunctionMinTurn columns per
+// row from the interior's (two lines meeting at a corner, not one line's highlight), the rows past the
+// lines' crossing within kJunctionReachRows rows are put on the interior's fit, where that moves them at
+// most kJunctionMaxMovePx (further, the point is on another line: the object's, whose row it may be). A
+// row several bright points reach takes the nearest one's (its side's fit holds the corner's rows).
+int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& p = *line_points;
+  const int n = static_cast<int>(p.size());
+  if (n == 0) return 0;
+  auto joined = [&](int x, int y) {  // x < y
+    const int gap = p[static_cast<size_t>(y)].row - p[static_cast<size_t>(x)].row;
+    return gap <= 2 && std::abs(p[static_cast<size_t>(y)].column - p[static_cast<size_t>(x)].column) <= kSteepMaxStepPx * gap;
+  };
+  // Stretch bounds and a prefix count of the faint points (peak at most kJunctionDimMax thresholds): an
+  // interior whose median is above that is rejected before it is walked (most points: the object's line).
+  std::vector<int> first(p.size()), last(p.size()), dim_before(p.size() + 1, 0);
+  for (int i = 0; i < n; ++i) first[static_cast<size_t>(i)] = i > 0 && joined(i - 1, i) ? first[static_cast<size_t>(i - 1)] : i;
+  for (int i = n - 1; i >= 0; --i) last[static_cast<size_t>(i)] = i + 1 < n && joined(i, i + 1) ? last[static_cast<size_t>(i + 1)] : i;
+  const double dim_max = kJunctionDimMax * threshold;
+  for (int i = 0; i < n; ++i)
+    dim_before[static_cast<size_t>(i + 1)] = dim_before[static_cast<size_t>(i)] + (p[static_cast<size_t>(i)].peak <= dim_max);
+  // Each stretch's faintest peak: a point under kJunctionRatio times it has no interior faint enough
+  // (skipped before any search: most of the table's own points).
+  std::vector<float> stretch_min(p.size());
+  for (int i = 0; i < n; ++i) {
+    const size_t f = static_cast<size_t>(first[static_cast<size_t>(i)]);
+    stretch_min[f] = static_cast<size_t>(i) == f ? p[static_cast<size_t>(i)].peak
+                                                  : std::min(stretch_min[f], p[static_cast<size_t>(i)].peak);
+  }
+  std::vector<int> point_rows(p.size());
+  for (int i = 0; i < n; ++i) point_rows[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].row;
+  std::vector<float> moved(p.size());
+  std::vector<int> from_rows(p.size(), 1 << 30);  // rows from the bright point a row was moved for
+  for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].column;
+  for (int b = 0; b < n; ++b) {
+    const LinePoint& pb = p[static_cast<size_t>(b)];
+    if (pb.peak < kJunctionRatio * stretch_min[static_cast<size_t>(first[static_cast<size_t>(b)])]) continue;
+    for (const int dir : {1, -1}) {
+      // The interior: indices [lo, hi] of b's stretch, kJunctionSkipRows to kJunctionSkipRows + kEndFitRows
+      // - 1 rows from b (one point per row, rows increasing with the index).
+      const int s_first = first[static_cast<size_t>(b)], s_last = last[static_cast<size_t>(b)];
+      auto row_dist = [&](int k) { return std::abs(p[static_cast<size_t>(k)].row - pb.row); };
+      // Rows increase with the index: the interior's ends by binary search (a walk per point cost ~5 % of
+      // a typical webcam frame).
+      const auto rows_begin = point_rows.begin();
+      int lo, hi;
+      if (dir == 1) {
+        lo = static_cast<int>(std::lower_bound(rows_begin + b + 1, rows_begin + s_last + 1, pb.row + kJunctionSkipRows) -
+                              rows_begin);
+        hi = static_cast<int>(std::lower_bound(rows_begin + b + 1, rows_begin + s_last + 1,
+                                               pb.row + kJunctionSkipRows + kEndFitRows) - rows_begin) - 1;
+      } else {
+        lo = static_cast<int>(std::upper_bound(rows_begin + s_first, rows_begin + b,
+                                               pb.row - kJunctionSkipRows - kEndFitRows) - rows_begin);
+        hi = static_cast<int>(std::upper_bound(rows_begin + s_first, rows_begin + b, pb.row - kJunctionSkipRows) -
+                              rows_begin) - 1;
+      }
+      if (lo > hi) continue;
+      const int m = hi - lo + 1;
+      if (m < kEndFitRows / 2) continue;
+      // The median peak at most dim_max: at least m / 2 + 1 of the points that faint.
+      if (dim_before[static_cast<size_t>(hi + 1)] - dim_before[static_cast<size_t>(lo)] < m / 2 + 1) continue;
+      // b at least kJunctionRatio times the median: at least m / 2 + 1 points that faint (no sort: on the
+      // table's own points, every one of which passes the test above, a sort per point cost ~4 % of a
+      // typical webcam frame).
+      int faint = 0;
+      for (int k = lo; k <= hi; ++k) faint += kJunctionRatio * p[static_cast<size_t>(k)].peak <= pb.peak;
+      if (faint < m / 2 + 1) continue;
+      // The interior's straight line, column = a0 + s (row - base), steep, with ends.cc's residual test.
+      const int base = p[static_cast<size_t>(lo)].row;
+      double sr = 0, sc = 0, srr = 0, src = 0;
+      for (int k = lo; k <= hi; ++k) {
+        const double r = p[static_cast<size_t>(k)].row - base, c = p[static_cast<size_t>(k)].column;
+        sr += r;
+        sc += c;
+        srr += r * r;
+        src += r * c;
+      }
+      const double det = m * srr - sr * sr;
+      if (det <= 0) continue;
+      const double s = (m * src - sr * sc) / det;
+      const double a0 = (sc - s * sr) / m;
+      if (std::abs(s) < kSteepSlope) continue;
+      const double length = std::sqrt(1.0 + s * s);
+      double residual2 = 0;
+      for (int k = lo; k <= hi; ++k) {
+        const double e = p[static_cast<size_t>(k)].column - (a0 + s * (p[static_cast<size_t>(k)].row - base));
+        residual2 += e * e;
+      }
+      if (residual2 > kEndMaxResidual * kEndMaxResidual * (1.0 + length) * (1.0 + length) * (m - 2)) continue;
+      // The bright side: b and its stretch's points beyond it (away from the interior) within
+      // kJunctionSideRows rows; its line crosses the interior's at the corner.
+      double br = 0, bc = 0, brr = 0, brc = 0;
+      int bm = 0;
+      for (int k = b; k >= s_first && k <= s_last && row_dist(k) <= kJunctionSideRows; k -= dir) {
+        const double r = p[static_cast<size_t>(k)].row - pb.row, c = p[static_cast<size_t>(k)].column;
+        br += r;
+        bc += c;
+        brr += r * r;
+        brc += r * c;
+        ++bm;
+      }
+      const double bdet = bm * brr - br * br;
+      double corner_row = pb.row;
+      if (bm >= 3 && bdet > 0) {
+        const double sb = (bm * brc - br * bc) / bdet;
+        if (std::abs(sb - s) < kJunctionMinTurn) continue;
+        const double cb = (bc - sb * br) / bm;  // the bright side's column at b's row
+        // a0 + s (r - base) = cb + sb (r - b.row)
+        corner_row = (cb - sb * pb.row - a0 + s * base) / (s - sb);
+      } else {
+        continue;
+      }
+      for (int k = b + dir; k != lo; k += dir) {
+        LinePoint& q = p[static_cast<size_t>(k)];
+        const double past = (q.row - corner_row) * dir;
+        if (past > kJunctionReachRows) break;
+        if (past <= 0) continue;  // the bright line's side of the corner
+        const double target = a0 + s * (q.row - base);
+        const int d = std::abs(q.row - pb.row);
+        if (std::abs(target - q.column) > kJunctionMaxMovePx || d >= from_rows[static_cast<size_t>(k)]) continue;
+        moved[static_cast<size_t>(k)] = static_cast<float>(target);
+        from_rows[static_cast<size_t>(k)] = d;
+      }
+    }
+  }
+  int count = 0;
+  for (int i = 0; i < n; ++i) {
+    count += from_rows[static_cast<size_t>(i)] < (1 << 30);
+    p[static_cast<size_t>(i)].column = moved[static_cast<size_t>(i)];
+  }
+  return count;
+}
+
 }  // namespace rotoscan::laser::detail

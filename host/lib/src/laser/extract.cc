@@ -507,6 +507,8 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   if (o.steep_across && stats.noise_on_lit) detail::RecentreSteepLines(on, off, channel, threshold, &line->points);
   // A steep stretch's end rows, whose row profile the line's end cuts, measured across the line (ends.cc).
   if (o.line_ends && stats.noise_on_lit) detail::RecentreLineEnds(on, off, channel, threshold, &line->points);
+  // The faint line's rows past its corner with a bright one, whose light the bright line's blur fills (ends.cc).
+  if (o.junction_rows && stats.noise_on_lit) detail::RecentreJunctionRows(threshold, &line->points);
   if (o.smooth_half_rows > 0) {
     std::vector<LinePoint>& points = line->points;
     const size_t n = points.size();

@@ -11,6 +11,7 @@
 //   LimitSmoothing   smooth.cc      the smoothing moves no point further than its uncertainty
 //   RecentreSteepLines steep.cc     a steep line's centre measured across the line, before the smoothing
 //   RecentreLineEnds ends.cc        a steep stretch's end rows (a cut profile) measured across the line
+//   RecentreJunctionRows ends.cc    the table line's rows past its corner with the object's, on its own line
 //   FillLineGaps     gaps.cc        rows missing inside a stretch, found along its curve by a matched filter
 //
 // The kernels these use, once per instruction set, are in kernels.h.
@@ -408,6 +409,26 @@ constexpr double kEndMaxResidual = 0.8;
 constexpr int kEndResumeRows = 16;
 int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                      std::vector<LinePoint>* points);
+
+// After RecentreLineEnds, before the smoothing: the table's faint steep line's rows just past its corner with
+// a bright line (the object's foot), whose profiles the bright line's blur fills, put on the faint line's
+// straight fit from further in (ends.cc, which says why and how the constants act); `threshold` the frame's
+// detection threshold. Returns how many rows moved. Chosen on the webcam sets (8 steps x 2 lasers, f/4 and
+// f/2.4, `rotoscan bench accuracy`; README, issue 15, thirteenth session): the table's rows over 1 px
+// across, f/4 glossy 1.70 -> 1.54 %, textured 2.53 -> 1.06 %; f/2.4 1.39 -> 1.24 %, 2.99 -> 1.75 %; the
+// object's no worse. Each constant was a choice among few: the ratio 3 (4: textured's table 1.33 %), the
+// reach 5 rows past the corner (3 / 4: 1.38 / 1.15 %; the rows over 1 px ran to 5 rows past the object's,
+// TableRowsTest), the move at most 8 px (unlimited: the glossy object's rows moved onto the table's line,
+// its rows over 1 px 1.63 -> 2.04 %), the faint-line gate (without it the glossy object at f/2.4, a 47 DN
+// stretch beside a highlight, lost 6 rows along the row), the turn 1 column per row.
+constexpr double kJunctionRatio = 3.0;
+constexpr double kJunctionDimMax = 2.0;
+constexpr int kJunctionSkipRows = 8;
+constexpr int kJunctionSideRows = 6;
+constexpr double kJunctionMinTurn = 1.0;
+constexpr int kJunctionReachRows = 5;
+constexpr double kJunctionMaxMovePx = 8.0;
+int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
 
 // After ScorePoints, before RecentreSteepLines: rows missing inside a stretch of line, looked for along the
 // stretch's curve by a matched filter over several rows (gaps.cc); `noise_dn` the frame's noise sigma.

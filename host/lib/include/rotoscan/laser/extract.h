@@ -138,6 +138,10 @@ struct ExtractOptions {
   // on one side, measured across the line with the direction of the stretch's interior (ends.cc); only on
   // frames whose noise was measured on lit pixels.
   bool line_ends = true;
+  // Where a bright line (the object's) meets the table's faint steep line, the faint line's first rows past
+  // the corner, whose light the bright line's blur fills, put on the faint line's straight fit from further
+  // in (ends.cc, RecentreJunctionRows; issue 15); only on frames whose noise was measured on lit pixels.
+  bool junction_rows = true;
   // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
   // stretch's curve with a matched filter over several rows, a threshold on their summed difference
   // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit
