@@ -174,7 +174,11 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
         const double half = std::max(kSteepMinHalfPx, width / length);
         const double level = kComLevelNum * static_cast<double>(q.peak) / kComScale;
         double t = 0;
-        if (!CentreAcross(on, off, channel, threshold, a, s, q.row, half, level, &t))
+        // The last kEndOnLineRows rows on the interior's line itself: where the cut runs along the rows (the
+        // table's rim), their window crosses it and the lit side pulls the centre across (extract_steps.h).
+        if (std::abs(q.row - p[static_cast<size_t>(first)].row) < kEndOnLineRows) {
+          t = 0;
+        } else if (!CentreAcross(on, off, channel, threshold, a, s, q.row, half, level, &t))
           continue;
         const double target = a + s * q.row + t * length;
         const double limit = std::max(static_cast<double>(q.uncertainty_px), kEndMaxMoveWidths * q.width);

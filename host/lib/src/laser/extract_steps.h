@@ -407,6 +407,14 @@ constexpr int kEndFitRows = 24;
 constexpr double kEndMaxMoveWidths = 0.5;
 constexpr double kEndMaxResidual = 0.8;
 constexpr int kEndResumeRows = 16;
+// The end's last kEndOnLineRows rows are put on the interior's straight line, no centre measured (thirteenth
+// session, rftable3): at the table's rim, a cut along the rows, every step's two lasers had their last row
+// 1.0-2.6 px past the truth's end along the row (the window across the line reaches past the rim, the lit
+// side pulls it). `bench accuracy`, 8 steps, over 1 px across, with the junction step: 0 / 1 / 2 / 3 rows
+// (1 = the last row only): f/4 glossy 1.60 / 1.58 / 1.53 / 1.50 %, textured 0.98 / 0.98 / 0.93 / 0.90 %; f/2.4
+// 1.21 / 1.19 / 1.18 / 1.13 %, 1.33 / 1.28 / 1.22 / 1.20 %; 2 kept (3: textured f/4's RMS per row 0.318 ->
+// 0.319 px); all end rows so: the tenth session's 52 / 49 and worse rows 2-7 from the end (README, issue 15).
+constexpr int kEndOnLineRows = 2;
 int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                      std::vector<LinePoint>* points);
 
