@@ -414,6 +414,9 @@ constexpr int kEndResumeRows = 16;
 // (1 = the last row only): f/4 glossy 1.60 / 1.58 / 1.53 / 1.50 %, textured 0.98 / 0.98 / 0.93 / 0.90 %; f/2.4
 // 1.21 / 1.19 / 1.18 / 1.13 %, 1.33 / 1.28 / 1.22 / 1.20 %; 2 kept (3: textured f/4's RMS per row 0.318 ->
 // 0.319 px); all end rows so: the tenth session's 52 / 49 and worse rows 2-7 from the end (README, issue 15).
+// (Those were measured on rftable3's branch, without rfalbedo3's change; on the merged main, 0 -> 2 rows: f/4
+// glossy 1.595 -> 1.533 %, textured 0.910 -> 0.862 %; f/2.4 1.208 -> 1.177 %, 1.221 -> 1.114 %; LineEndTest.
+// TableRimLastRowsNearTheTruthOnWebcamFrames: 17 -> 10 of 64-65 rows over 1 px.)
 constexpr int kEndOnLineRows = 2;
 int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                      std::vector<LinePoint>* points);
