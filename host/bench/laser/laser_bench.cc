@@ -261,8 +261,7 @@ void BM_WebcamStep(benchmark::State& state) {
     points = lines[i].points;
     const rotoscan::laser::LineStats& s = lines[i].stats;
     if (which == 0) {
-      total += static_cast<size_t>(rotoscan::laser::detail::FillLineGaps(f.on[i], f.off[i], 0, s.noise_dn, &points,
-                                                                         rotoscan::laser::detail::kGapMinZ, false));
+      total += static_cast<size_t>(rotoscan::laser::detail::FillLineGaps(f.on[i], f.off[i], 0, s.noise_dn, &points));
     } else if (which == 1) {
       total += static_cast<size_t>(
           rotoscan::laser::detail::RecentreSteepLines(f.on[i], f.off[i], 0, s.threshold_dn, &points));

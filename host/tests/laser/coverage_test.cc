@@ -34,6 +34,7 @@
 #include "rotoscan/sim/renderer.h"
 #include "rotoscan/sim/scene.h"
 #include "testing/testing.h"
+#include "webcam_truth.h"
 
 namespace rotoscan::laser {
 namespace {
@@ -85,12 +86,9 @@ SetCoverage Measure(const std::string& scene_file, int steps) {
     const sim::RenderedStep frames = (*renderer)->RenderStep(angle, seed, {true, true, true, false});
     for (int k = 0; k < 2; ++k) {
       const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
-      std::map<int, std::vector<double>> all_by_row;
-      std::map<int, bool> object_row;
-      for (const bundle::LinePoint& t : truth) {
-        all_by_row[t.row].push_back(t.column);
-        object_row[t.row] = object_row[t.row] || t.object != 0;
-      }
+      testing::TruthByRow truth_rows = testing::TruthRows(truth);
+      std::map<int, std::vector<double>>& all_by_row = truth_rows.all;
+      std::map<int, bool>& object_row = truth_rows.object;
       Line line, plain;
       EXPECT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
       EXPECT_TRUE(no_gaps.Extract(frames.frames[k], frames.frames[2], &plain).ok());

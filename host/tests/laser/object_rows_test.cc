@@ -27,6 +27,7 @@
 #include "rotoscan/sim/renderer.h"
 #include "rotoscan/sim/scene.h"
 #include "testing/testing.h"
+#include "webcam_truth.h"
 
 namespace rotoscan::laser {
 namespace {
@@ -637,14 +638,7 @@ TEST(ObjectRowsTest, TexturedFaintRowsSignal) {
   auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/textured-webcam.json"));
   ASSERT_TRUE(scene.ok()) << scene.status().ToString();
   for (sim::LaserModel& laser : scene->laser) laser.f_number = 4.0;
-  sim::Scene clean = *scene;
-  clean.sensor.noise = false;
-  clean.ambient_change = 0.0;
-  clean.ambient_flicker = 0.0;
-  for (sim::LaserModel& laser : clean.laser) {
-    laser.f_number = 0.0;
-    laser.speckle_contrast = 0.0;
-  }
+  const sim::Scene clean = testing::NoiseFreeScene(*scene, /*keep_jpeg=*/true);
   auto renderer = sim::Renderer::Create(*scene);
   auto clean_renderer = sim::Renderer::Create(clean);
   ASSERT_TRUE(renderer.ok() && clean_renderer.ok());
@@ -963,14 +957,7 @@ TEST(ObjectRowsTest, TexturedMissedRowsByPlace) {
     auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/textured-webcam.json"));
     ASSERT_TRUE(scene.ok()) << scene.status().ToString();
     for (sim::LaserModel& laser : scene->laser) laser.f_number = f_number;
-    sim::Scene clean = *scene;
-    clean.sensor.noise = false;
-    clean.ambient_change = 0.0;
-    clean.ambient_flicker = 0.0;
-    for (sim::LaserModel& laser : clean.laser) {
-      laser.f_number = 0.0;
-      laser.speckle_contrast = 0.0;
-    }
+    const sim::Scene clean = testing::NoiseFreeScene(*scene, /*keep_jpeg=*/true);
     auto renderer = sim::Renderer::Create(*scene);
     auto clean_renderer = sim::Renderer::Create(clean);
     ASSERT_TRUE(renderer.ok() && clean_renderer.ok());
@@ -993,12 +980,9 @@ TEST(ObjectRowsTest, TexturedMissedRowsByPlace) {
       for (int k = 0; k < 2; ++k) {
         cv::Mat clean_on;
         cv::extractChannel(frames_clean.frames[k], clean_on, 2);
-        std::map<int, std::vector<double>> all_by_row;
-        std::map<int, bool> object_row;
-        for (const bundle::LinePoint& t : (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle)) {
-          all_by_row[t.row].push_back(t.column);
-          object_row[t.row] = object_row[t.row] || t.object != 0;
-        }
+        testing::TruthByRow truth_rows = testing::TruthRows((*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle));
+        std::map<int, std::vector<double>>& all_by_row = truth_rows.all;
+        std::map<int, bool>& object_row = truth_rows.object;
         std::map<int, bool> default_has;
         for (int v = 0; v < 3; ++v) {
           Line line;

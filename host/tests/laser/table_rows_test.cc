@@ -30,6 +30,7 @@
 #include "rotoscan/sim/renderer.h"
 #include "rotoscan/sim/scene.h"
 #include "testing/testing.h"
+#include "webcam_truth.h"
 
 namespace rotoscan::laser {
 namespace {
@@ -195,15 +196,7 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
   const char* f_number = std::getenv("ROTOSCAN_TABLE_ROWS_F");
   if (f_number != nullptr && std::atof(f_number) > 0)
     for (sim::LaserModel& laser : scene->laser) laser.f_number = std::atof(f_number);
-  sim::Scene clean_scene = *scene;
-  clean_scene.sensor.noise = false;
-  clean_scene.sensor.jpeg_quality = 0;
-  clean_scene.ambient_change = 0;
-  clean_scene.ambient_flicker = 0;
-  for (sim::LaserModel& laser : clean_scene.laser) {
-    laser.f_number = 0;
-    laser.speckle_contrast = 0;
-  }
+  const sim::Scene clean_scene = testing::NoiseFreeScene(*scene, /*keep_jpeg=*/false);
   auto renderer = sim::Renderer::Create(*scene);
   auto clean_renderer = sim::Renderer::Create(clean_scene);
   EXPECT_TRUE(renderer.ok() && clean_renderer.ok());
@@ -226,12 +219,9 @@ SetRows MeasureSet(const std::string& scene_file, int steps) {
       out.threshold.push_back(line.stats.threshold_dn);
       cv::Mat clean_on;
       cv::extractChannel(clean.frames[k], clean_on, 2);
-      std::map<int, std::vector<double>> all_by_row;
-      std::map<int, bool> object_row;
-      for (const bundle::LinePoint& t : truth) {
-        all_by_row[t.row].push_back(t.column);
-        object_row[t.row] = object_row[t.row] || t.object != 0;
-      }
+      testing::TruthByRow truth_rows = testing::TruthRows(truth);
+      std::map<int, std::vector<double>>& all_by_row = truth_rows.all;
+      std::map<int, bool>& object_row = truth_rows.object;
       std::map<int, float> point_of_row;
       for (const LinePoint& p : line.points) point_of_row[p.row] = p.column;
       // The rows the gap step filled: without it, no point.
@@ -890,12 +880,9 @@ TEST(LineEndTest, TableRimLastRowsNearTheTruthOnWebcamFrames) {
           (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, -1, step, 0), {true, true, true, false});
       for (int k = 0; k < 2; ++k) {
         const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
-        std::map<int, std::vector<double>> all_by_row;
-        std::map<int, bool> object_row;
-        for (const bundle::LinePoint& t : truth) {
-          all_by_row[t.row].push_back(t.column);
-          object_row[t.row] = object_row[t.row] || t.object != 0;
-        }
+        testing::TruthByRow truth_rows = testing::TruthRows(truth);
+        std::map<int, std::vector<double>>& all_by_row = truth_rows.all;
+        std::map<int, bool>& object_row = truth_rows.object;
         Line line;
         ASSERT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
         for (const LinePoint& p : line.points) {
@@ -964,10 +951,19 @@ TEST(SteepLineTest, WeakSpeckledSteepLineMidRowsMeasuredAcross) {
 }
 
 // The false rate: the points of real stretches with gaps punched in them (rows 3 and 4 of every 7) given to
-// FillLineGaps with a pair of laser-off frames (no laser): every filled row is a false one. Synthetic
+// FillLineGaps and its end part (FillGapsAndEnds) with a pair of laser-off frames (no laser): every filled
+// row is a false one. Synthetic
 // (white noise) pairs, and the webcam scenes' laser-off pairs (DetectionFloorTest's: MJPEG, demosaicing,
 // rolling-shutter flicker, changing ambient), whose pixels are correlated: the variance of a box's sum
 // over the pixels' count times sigma^2 is printed (gaps.cc's kGapCorrelation).
+// The gap step and its end part as the extractor runs them with extend_line_ends, the end part's z scaled
+// with the gap step's (kEndMinZ at kGapMinZ).
+int FillGapsAndEnds(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
+                    std::vector<LinePoint>* points, double min_z = detail::kGapMinZ) {
+  const int gaps = detail::FillLineGaps(on, off, channel, noise_dn, points, min_z);
+  return gaps + detail::ExtendLineEnds(on, off, channel, noise_dn, points, min_z * detail::kEndMinZ / detail::kGapMinZ);
+}
+
 std::vector<LinePoint> Punched(const std::vector<LinePoint>& points, int* offered) {
   std::vector<LinePoint> kept;
   for (const LinePoint& p : points) {
@@ -998,9 +994,9 @@ TEST(GapFillTest, NoRowsFilledOnLaserOffPairs) {
     std::vector<LinePoint> real = points;
     for (int z = 0; z < 4; ++z) {
       std::vector<LinePoint> copy = points;
-      false_rows[z] += detail::FillLineGaps(off2, off, 0, noise->stats.noise_dn, &copy, zs[z]);
+      false_rows[z] += FillGapsAndEnds(off2, off, 0, noise->stats.noise_dn, &copy, zs[z]);
     }
-    real_filled += detail::FillLineGaps(on, off, 0, a->stats.noise_dn, &real);
+    real_filled += FillGapsAndEnds(on, off, 0, a->stats.noise_dn, &real);
     offered += o;
     real_offered += o;
   }
@@ -1032,7 +1028,7 @@ TEST(GapFillTest, NoRowsFilledOnLaserOffPairs) {
         rendered_offered += o;
         for (int z = 0; z < 4; ++z) {
           std::vector<LinePoint> copy = points;
-          rendered_false[z] += detail::FillLineGaps(other, frames.frames[2], 2, sigma, &copy, zs[z]);
+          rendered_false[z] += FillGapsAndEnds(other, frames.frames[2], 2, sigma, &copy, zs[z]);
         }
       }
       // Box sums (8 x 4 px) of the red difference over lit pixels (laser-off >= 16 DN): their variance over
@@ -1111,8 +1107,8 @@ TEST(GapFillTest, GapsWithASinglePointOnOneSideFilled) {
       if (gap <= 16) offered += gap;
     }
     std::vector<LinePoint> real = kept, fake = kept;
-    detail::FillLineGaps(on, off, 0, a->stats.noise_dn, &real, detail::kGapMinZ, false);
-    false_rows += detail::FillLineGaps(off2, off, 0, noise->stats.noise_dn, &fake, detail::kGapMinZ, false);
+    detail::FillLineGaps(on, off, 0, a->stats.noise_dn, &real);
+    false_rows += detail::FillLineGaps(off2, off, 0, noise->stats.noise_dn, &fake);
     for (const LinePoint& p : real) {
       if (kept_row.count(p.row) != 0) continue;
       ++filled;
@@ -1166,7 +1162,7 @@ TEST(GapFillTest, GapsBesideAWrongPointFilled) {
     };
     for (int r = 0; r < kRows; ++r) offered += offered_row(r);
     std::vector<LinePoint> real = kept;
-    detail::FillLineGaps(on, off, 0, a->stats.noise_dn, &real, detail::kGapMinZ, false);
+    detail::FillLineGaps(on, off, 0, a->stats.noise_dn, &real);
     for (const LinePoint& p : real) {
       if (!offered_row(p.row)) continue;
       ++filled;

@@ -93,16 +93,56 @@ bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int thresh
   return true;
 }
 
+// Points x < y of one stretch (steep.cc's): at most 2 rows apart, at most kSteepMaxStepPx columns per row.
+bool Joined(const std::vector<LinePoint>& p, int x, int y) {
+  const int gap = p[static_cast<size_t>(y)].row - p[static_cast<size_t>(x)].row;
+  return gap <= 2 && std::abs(p[static_cast<size_t>(y)].column - p[static_cast<size_t>(x)].column) <= kSteepMaxStepPx * gap;
+}
+
+// A steep straight line column = a0 + s (row - base) through the points from..to (either order; base their
+// first's row), by least squares, where it is steep (kSteepSlope) and a line: the points' RMS distance
+// along their rows from it (per degree of freedom) at most kEndMaxResidual (1 + L) px (steep.cc's test, as
+// loose as gaps.cc's: speckle scatters a weak steep line's rows by more than steep.cc's 0.35).
+struct SteepLine {
+  int base;
+  double a0, s, length;
+};
+bool FitSteepLine(const std::vector<LinePoint>& p, int from, int to, SteepLine* line) {
+  const int dir = to >= from ? 1 : -1;
+  const int m = std::abs(to - from) + 1;
+  const int base = p[static_cast<size_t>(from)].row;
+  double sr = 0, sc = 0, srr = 0, src = 0;
+  for (int k = from; k != to + dir; k += dir) {
+    const LinePoint& q = p[static_cast<size_t>(k)];
+    const double r = q.row - base;
+    sr += r;
+    sc += q.column;
+    srr += r * r;
+    src += r * q.column;
+  }
+  const double det = m * srr - sr * sr;
+  if (det <= 0) return false;
+  const double s = (m * src - sr * sc) / det;
+  const double a0 = (sc - s * sr) / m;
+  if (std::abs(s) < kSteepSlope) return false;
+  const double length = std::sqrt(1.0 + s * s);
+  double residual2 = 0;
+  for (int k = from; k != to + dir; k += dir) {
+    const LinePoint& q = p[static_cast<size_t>(k)];
+    const double e = q.column - (a0 + s * (q.row - base));
+    residual2 += e * e;
+  }
+  if (residual2 > kEndMaxResidual * kEndMaxResidual * (1.0 + length) * (1.0 + length) * (m - 2)) return false;
+  *line = {base, a0, s, length};
+  return true;
+}
+
 }  // namespace
 
 int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                      std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
-  auto joined = [&](int x, int y) {
-    const int gap = p[y].row - p[x].row;
-    return gap <= 2 && std::abs(p[y].column - p[x].column) <= kSteepMaxStepPx * gap;
-  };
   std::vector<float> moved(p.size());
   for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].column;
   int count = 0;
@@ -110,7 +150,7 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
   std::vector<double> widths;
   while (start < n) {
     int end = start;  // inclusive
-    while (end + 1 < n && joined(end, end + 1)) ++end;
+    while (end + 1 < n && Joined(p, end, end + 1)) ++end;
     // Where the line goes on after a gap (a shadow, rows the row pass missed: gaps.cc's), the end is no
     // line's end: the cut's angle is unknown there (a cut along the rows leaves each row's profile whole,
     // and the centre across would be pulled instead).
@@ -133,52 +173,26 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
       fit_to = dir == 1 ? std::min(fit_to, end) : std::max(fit_to, start);
       const int m = std::abs(fit_to - fit_from) + 1;
       if (m < kSteepMinPoints) continue;
-      // A straight line column = a + s row through the interior's points (rows relative to `base`), by
-      // least squares.
-      double sr = 0, sc = 0, srr = 0, src = 0;
-      const int base = p[static_cast<size_t>(fit_from)].row;
+      SteepLine fit;
+      if (!FitSteepLine(p, fit_from, fit_to, &fit)) continue;
+      const double s = fit.s, length = fit.length;
       widths.clear();
-      for (int k = fit_from; k != fit_to + dir; k += dir) {
-        const LinePoint& q = p[static_cast<size_t>(k)];
-        const double r = q.row - base;
-        sr += r;
-        sc += q.column;
-        srr += r * r;
-        src += r * q.column;
-        widths.push_back(q.width);
-      }
-      const double det = m * srr - sr * sr;
-      if (det <= 0) continue;
-      const double s = (m * src - sr * sc) / det;
-      const double a0 = (sc - s * sr) / m;  // at row `base`
-      if (std::abs(s) < kSteepSlope) continue;
-      const double length = std::sqrt(1.0 + s * s);
-      // A line: the points' RMS distance along their rows from the fit (per degree of freedom) at most
-      // kEndMaxResidual (1 + L) px (steep.cc's test, as loose as gaps.cc's: speckle scatters a weak steep
-      // line's rows by more than steep.cc's 0.35).
-      double residual2 = 0;
-      for (int k = fit_from; k != fit_to + dir; k += dir) {
-        const LinePoint& q = p[static_cast<size_t>(k)];
-        const double e = q.column - (a0 + s * (q.row - base));
-        residual2 += e * e;
-      }
-      if (residual2 > kEndMaxResidual * kEndMaxResidual * (1.0 + length) * (1.0 + length) * (m - 2)) continue;
+      for (int k = fit_from; k != fit_to + dir; k += dir) widths.push_back(p[static_cast<size_t>(k)].width);
       std::nth_element(widths.begin(), widths.begin() + static_cast<long>(widths.size() / 2), widths.end());
       const double width = widths[widths.size() / 2];
       // The end rows: within twice the row width over |s| rows of the end point (at most kEndMaxRows).
       const int reach = std::min(kEndMaxRows, static_cast<int>(std::ceil(2.0 * width / std::abs(s))));
-      const double a = a0 - s * base;  // column = a + s row
+      const double a = fit.a0 - s * fit.base;  // column = a + s row
       for (int k = first; k != first + dir * kEndMaxRows; k += dir) {
         LinePoint& q = p[static_cast<size_t>(k)];
         if (std::abs(q.row - p[static_cast<size_t>(first)].row) >= reach) break;
         const double half = std::max(kSteepMinHalfPx, width / length);
         const double level = kComLevelNum * static_cast<double>(q.peak) / kComScale;
+        // The last kEndOnLineRows rows on the interior's line itself (t = 0): where the cut runs along the rows
+        // (the table's rim), their window crosses it and the lit side pulls the centre across (extract_steps.h).
         double t = 0;
-        // The last kEndOnLineRows rows on the interior's line itself: where the cut runs along the rows (the
-        // table's rim), their window crosses it and the lit side pulls the centre across (extract_steps.h).
-        if (std::abs(q.row - p[static_cast<size_t>(first)].row) < kEndOnLineRows) {
-          t = 0;
-        } else if (!CentreAcross(on, off, channel, threshold, a, s, q.row, half, level, &t))
+        if (std::abs(q.row - p[static_cast<size_t>(first)].row) >= kEndOnLineRows &&
+            !CentreAcross(on, off, channel, threshold, a, s, q.row, half, level, &t))
           continue;
         const double target = a + s * q.row + t * length;
         const double limit = std::max(static_cast<double>(q.uncertainty_px), kEndMaxMoveWidths * q.width);
@@ -220,15 +234,11 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
   if (n == 0) return 0;
-  auto joined = [&](int x, int y) {  // x < y
-    const int gap = p[static_cast<size_t>(y)].row - p[static_cast<size_t>(x)].row;
-    return gap <= 2 && std::abs(p[static_cast<size_t>(y)].column - p[static_cast<size_t>(x)].column) <= kSteepMaxStepPx * gap;
-  };
   // Stretch bounds and a prefix count of the faint points (peak at most kJunctionDimMax thresholds): an
   // interior whose median is above that is rejected before it is walked (most points: the object's line).
   std::vector<int> first(p.size()), last(p.size()), dim_before(p.size() + 1, 0);
-  for (int i = 0; i < n; ++i) first[static_cast<size_t>(i)] = i > 0 && joined(i - 1, i) ? first[static_cast<size_t>(i - 1)] : i;
-  for (int i = n - 1; i >= 0; --i) last[static_cast<size_t>(i)] = i + 1 < n && joined(i, i + 1) ? last[static_cast<size_t>(i + 1)] : i;
+  for (int i = 0; i < n; ++i) first[static_cast<size_t>(i)] = i > 0 && Joined(p, i - 1, i) ? first[static_cast<size_t>(i - 1)] : i;
+  for (int i = n - 1; i >= 0; --i) last[static_cast<size_t>(i)] = i + 1 < n && Joined(p, i, i + 1) ? last[static_cast<size_t>(i + 1)] : i;
   const double dim_max = kJunctionDimMax * threshold;
   for (int i = 0; i < n; ++i)
     dim_before[static_cast<size_t>(i + 1)] = dim_before[static_cast<size_t>(i)] + (p[static_cast<size_t>(i)].peak <= dim_max);
@@ -279,28 +289,11 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
       int faint = 0;
       for (int k = lo; k <= hi; ++k) faint += kJunctionRatio * p[static_cast<size_t>(k)].peak <= pb.peak;
       if (faint < m / 2 + 1) continue;
-      // The interior's straight line, column = a0 + s (row - base), steep, with ends.cc's residual test.
-      const int base = p[static_cast<size_t>(lo)].row;
-      double sr = 0, sc = 0, srr = 0, src = 0;
-      for (int k = lo; k <= hi; ++k) {
-        const double r = p[static_cast<size_t>(k)].row - base, c = p[static_cast<size_t>(k)].column;
-        sr += r;
-        sc += c;
-        srr += r * r;
-        src += r * c;
-      }
-      const double det = m * srr - sr * sr;
-      if (det <= 0) continue;
-      const double s = (m * src - sr * sc) / det;
-      const double a0 = (sc - s * sr) / m;
-      if (std::abs(s) < kSteepSlope) continue;
-      const double length = std::sqrt(1.0 + s * s);
-      double residual2 = 0;
-      for (int k = lo; k <= hi; ++k) {
-        const double e = p[static_cast<size_t>(k)].column - (a0 + s * (p[static_cast<size_t>(k)].row - base));
-        residual2 += e * e;
-      }
-      if (residual2 > kEndMaxResidual * kEndMaxResidual * (1.0 + length) * (1.0 + length) * (m - 2)) continue;
+      // The interior's straight line, column = a0 + s (row - base), steep, with the line-end step's residual test.
+      SteepLine fit;
+      if (!FitSteepLine(p, lo, hi, &fit)) continue;
+      const double a0 = fit.a0, s = fit.s;
+      const int base = fit.base;
       // The bright side: b and its stretch's points beyond it (away from the interior) within
       // kJunctionSideRows rows; its line crosses the interior's at the corner.
       double br = 0, bc = 0, brr = 0, brc = 0;
@@ -314,16 +307,12 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
         ++bm;
       }
       const double bdet = bm * brr - br * br;
-      double corner_row = pb.row;
-      if (bm >= 3 && bdet > 0) {
-        const double sb = (bm * brc - br * bc) / bdet;
-        if (std::abs(sb - s) < kJunctionMinTurn) continue;
-        const double cb = (bc - sb * br) / bm;  // the bright side's column at b's row
-        // a0 + s (r - base) = cb + sb (r - b.row)
-        corner_row = (cb - sb * pb.row - a0 + s * base) / (s - sb);
-      } else {
-        continue;
-      }
+      if (bm < 3 || bdet <= 0) continue;
+      const double sb = (bm * brc - br * bc) / bdet;
+      if (std::abs(sb - s) < kJunctionMinTurn) continue;
+      const double cb = (bc - sb * br) / bm;  // the bright side's column at b's row
+      // a0 + s (r - base) = cb + sb (r - b.row)
+      const double corner_row = (cb - sb * pb.row - a0 + s * base) / (s - sb);
       for (int k = b + dir; k != lo; k += dir) {
         LinePoint& q = p[static_cast<size_t>(k)];
         const double past = (q.row - corner_row) * dir;

@@ -498,8 +498,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   // Rows missing inside a stretch, found along its curve (gaps.cc), on the same frames as steep.cc. Its end
   // part (extend_line_ends) runs after the smoothing, below.
   if (o.fill_gaps && stats.noise_on_lit) {
-    stats.gap_filled = detail::FillLineGaps(on, off, channel, stats.noise_dn, &line->points, detail::kGapMinZ,
-                                              /*extend_ends=*/false);
+    stats.gap_filled = detail::FillLineGaps(on, off, channel, stats.noise_dn, &line->points);
     stats.found += stats.gap_filled;
   }
   // A steep line measured across itself (steep.cc), on frames whose noise was measured on lit pixels:

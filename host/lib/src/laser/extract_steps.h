@@ -443,17 +443,15 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
 
 // After ScorePoints, before RecentreSteepLines: rows missing inside a stretch of line, looked for along the
 // stretch's curve by a matched filter over several rows (gaps.cc); `noise_dn` the frame's noise sigma.
-// A row is filled where the matched filter's contrast reaches min_z times its noise (gaps.cc); then the
-// stretches' ends are looked past (ExtendLineEnds, at min_z * kEndMinZ / kGapMinZ). The filled points are
-// inserted in row order. Returns how many (both parts; the second only with extend_ends,
-// ExtractOptions::extend_line_ends).
+// A row is filled where the matched filter's contrast reaches min_z times its noise (gaps.cc). The filled
+// points are inserted in row order. Returns how many.
 constexpr double kGapMinZ = 6.0;
 int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                 std::vector<LinePoint>* points, double min_z = kGapMinZ, bool extend_ends = true);
-// FillLineGaps's second part (gaps.cc): a stretch's faint continuation past its end, along a straight line
-// from its end, where the matched filter summed over the run of rows reaches min_z (kEndMinZ at the gap
-// step's kGapMinZ). Returns how many rows it filled. CountLineEnds: the ends it looks past. The extractor
-// (ExtractOptions::extend_line_ends) calls it on its own after the smoothing, not through FillLineGaps.
+                 std::vector<LinePoint>* points, double min_z = kGapMinZ);
+// The gap step's end part (gaps.cc; ExtractOptions::extend_line_ends, run by the extractor after the
+// smoothing): a stretch's faint continuation past its end, along a straight line from its end, where the
+// matched filter summed over the run of rows reaches min_z (kEndMinZ at the gap step's kGapMinZ). Returns how
+// many rows it filled. CountLineEnds: the ends it looks past.
 constexpr double kEndMinZ = 8.0;
 int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
                    std::vector<LinePoint>* points, double min_z = kEndMinZ);

@@ -74,8 +74,7 @@
 // machine-vision preset's clean frames the row pass finds what there is.
 //
 // Then the stretches' ends are looked past (ExtendLineEnds, below: a faint straight continuation summed over
-// its run of rows), by the extractor after the smoothing (extract.cc; FillLineGaps's extend_ends for callers
-// of its own).
+// its run of rows), by the extractor after the smoothing (extract.cc).
 #include <algorithm>
 #include <cmath>
 #include <iterator>
@@ -141,7 +140,7 @@ struct Curve {
   }
 };
 
-// ExtendLineEnds (extract_steps.h; FillLineGaps runs it after the gaps): a stretch's faint continuation
+// ExtendLineEnds (extract_steps.h; the extractor runs it after the smoothing): a stretch's faint continuation
 // past its end, along a straight line from the end.
 //
 // Why (issue 15, ObjectRowsTest.TexturedFaintRowsSignal and FaintStretchFoundPastItsEnd): the textured
@@ -617,7 +616,7 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
 }
 
 int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                 std::vector<LinePoint>* line_points, double min_z, bool extend_ends) {
+                 std::vector<LinePoint>* line_points, double min_z) {
   std::vector<LinePoint>& p = *line_points;
   const size_t n = p.size();
   if (n < 2 * kGapMinSide || noise_dn <= 0) return 0;
@@ -869,8 +868,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
                [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });
     p.swap(merged);
   }
-  if (!extend_ends) return count;
-  return count + ExtendLineEnds(on, off, channel, noise_dn, line_points, min_z * kEndMinZ / kGapMinZ);
+  return count;
 }
 
 }  // namespace rotoscan::laser::detail

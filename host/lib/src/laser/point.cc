@@ -104,10 +104,14 @@ double AlbedoInverseDivisor(double blurred, double floor_dn) {
 // The laser-off row's edge over [lo, hi] (kAlbedoSharpEdgeNum): its range and its steepest two-pixel
 // change, and whether the laser-on row saturates there. AlbedoNormalisedCentre and ClippedAlbedoCentre
 // judge the same window by it.
+// An edge is sharp where its steepest two-pixel change holds kAlbedoSharpEdgeNum / Den of its range.
+bool SharpEdge(int steepest, int high, int low) {
+  return kAlbedoSharpEdgeDen * steepest >= kAlbedoSharpEdgeNum * (high - low);
+}
 struct OffEdge {
   int high = 0, low = 255, steepest = 0;
   bool saturated = false;
-  bool Sharp() const { return kAlbedoSharpEdgeDen * steepest >= kAlbedoSharpEdgeNum * (high - low); }
+  bool Sharp() const { return SharpEdge(steepest, high, low); }
 };
 OffEdge ScanOffEdge(const uint8_t* a, const uint8_t* b, int lo, int hi) {
   OffEdge e;
@@ -118,6 +122,12 @@ OffEdge ScanOffEdge(const uint8_t* a, const uint8_t* b, int lo, int hi) {
     if (i > lo + 1) e.steepest = std::max(e.steepest, std::abs(int{b[i]} - int{b[i - 2]}));
   }
   return e;
+}
+// The steepest two-pixel change of the row b over [lo, hi] (ScanOffEdge's, alone).
+int SteepestChange(const uint8_t* b, int lo, int hi) {
+  int steepest = 0;
+  for (int i = lo + 2; i <= hi; ++i) steepest = std::max(steepest, std::abs(int{b[i]} - int{b[i - 2]}));
+  return steepest;
 }
 
 // A point's uncertainty raised to `with`, its quality lowered as ScorePoints' 1 / (1 + u^2) would have it.
@@ -188,15 +198,11 @@ bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright)
   // (RealFramesTest.DesignStatisticsWithNotches...: a 2 px texel). But with narrow_bright a bright level
   // kAlbedoNarrowBrightPx wide where the row is blurred: a white cell's sliver (extract_steps.h).
   const int middle = high + low;  // doubled
-  int above = 0, steepest2 = 0;
-  for (int i = first; i <= last; ++i) {
-    above += 2 * b[i] > middle;
-    if (i >= first + 2) steepest2 = std::max(steepest2, std::abs(int{b[i]} - int{b[i - 2]}));
-  }
+  int above = 0;
+  for (int i = first; i <= last; ++i) above += 2 * b[i] > middle;
   if (last - first + 1 - above < kAlbedoMinLevelPx) return false;
   if (above >= kAlbedoMinLevelPx) return true;
-  return narrow_bright && above >= kAlbedoNarrowBrightPx &&
-         kAlbedoSharpEdgeDen * steepest2 < kAlbedoSharpEdgeNum * (high - low);
+  return narrow_bright && above >= kAlbedoNarrowBrightPx && !SharpEdge(SteepestChange(b, first, last), high, low);
 }
 
 double AlbedoNormalisedCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b, int cols, int first, int last) {
