@@ -255,29 +255,33 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
   std::vector<float> moved(p.size());
   std::vector<int> from_rows(p.size(), 1 << 30);  // rows from the bright point a row was moved for
   for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].column;
+  // The interior's ends, [lo, hi], move only forwards with b within a stretch (rows increase with the index):
+  // found by pointers that walk on from b's predecessor's (fourteenth session: a binary search per point and
+  // direction cost ~4 % of a typical webcam frame, laser_bench BM_ExtractWebcam/1), reset at each stretch's
+  // start. Each is the binary search's answer: the first index in its range whose row passes its bound.
+  int below_lo = 0, below_hi = 0, above_lo = 0, above_hi = 0;  // dir 1: [lo, hi + 1); dir -1: the same
   for (int b = 0; b < n; ++b) {
     const LinePoint& pb = p[static_cast<size_t>(b)];
-    if (pb.peak < kJunctionRatio * stretch_min[static_cast<size_t>(first[static_cast<size_t>(b)])]) continue;
+    const int s_first = first[static_cast<size_t>(b)], s_last = last[static_cast<size_t>(b)];
+    if (b == s_first) below_lo = below_hi = b + 1, above_lo = above_hi = s_first;
+    if (pb.peak < kJunctionRatio * stretch_min[static_cast<size_t>(s_first)]) continue;
+    // dir 1: the first index in (b, s_last] with row >= pb.row + kJunctionSkipRows (+ kEndFitRows), or
+    // s_last + 1 (std::lower_bound); dir -1: the first in [s_first, b) with row > pb.row - kJunctionSkipRows
+    // (- kEndFitRows), or b (std::upper_bound).
+    below_lo = std::max(below_lo, b + 1);
+    while (below_lo <= s_last && point_rows[static_cast<size_t>(below_lo)] < pb.row + kJunctionSkipRows) ++below_lo;
+    below_hi = std::max(below_hi, below_lo);
+    while (below_hi <= s_last && point_rows[static_cast<size_t>(below_hi)] < pb.row + kJunctionSkipRows + kEndFitRows)
+      ++below_hi;
+    while (above_lo < b && point_rows[static_cast<size_t>(above_lo)] <= pb.row - kJunctionSkipRows - kEndFitRows) ++above_lo;
+    above_hi = std::max(above_hi, above_lo);
+    while (above_hi < b && point_rows[static_cast<size_t>(above_hi)] <= pb.row - kJunctionSkipRows) ++above_hi;
     for (const int dir : {1, -1}) {
       // The interior: indices [lo, hi] of b's stretch, kJunctionSkipRows to kJunctionSkipRows + kEndFitRows
       // - 1 rows from b (one point per row, rows increasing with the index).
-      const int s_first = first[static_cast<size_t>(b)], s_last = last[static_cast<size_t>(b)];
       auto row_dist = [&](int k) { return std::abs(p[static_cast<size_t>(k)].row - pb.row); };
-      // Rows increase with the index: the interior's ends by binary search (a walk per point cost ~5 % of
-      // a typical webcam frame).
-      const auto rows_begin = point_rows.begin();
-      int lo, hi;
-      if (dir == 1) {
-        lo = static_cast<int>(std::lower_bound(rows_begin + b + 1, rows_begin + s_last + 1, pb.row + kJunctionSkipRows) -
-                              rows_begin);
-        hi = static_cast<int>(std::lower_bound(rows_begin + b + 1, rows_begin + s_last + 1,
-                                               pb.row + kJunctionSkipRows + kEndFitRows) - rows_begin) - 1;
-      } else {
-        lo = static_cast<int>(std::upper_bound(rows_begin + s_first, rows_begin + b,
-                                               pb.row - kJunctionSkipRows - kEndFitRows) - rows_begin);
-        hi = static_cast<int>(std::upper_bound(rows_begin + s_first, rows_begin + b, pb.row - kJunctionSkipRows) -
-                              rows_begin) - 1;
-      }
+      const int lo = dir == 1 ? below_lo : above_lo;
+      const int hi = (dir == 1 ? below_hi : above_hi) - 1;
       if (lo > hi) continue;
       const int m = hi - lo + 1;
       if (m < kEndFitRows / 2) continue;
