@@ -125,11 +125,32 @@ inline int ClampToIndex(double x, int size) {
   return static_cast<int>(x);
 }
 
-// A pixel of a row's window within kGapAlongPx along the line, for the centre of mass.
+// std::floor and std::ceil, but for the sign of a zero (which ClampToIndex and the additions below ignore),
+// without the library call (the baseline instruction set has no rounding instruction; FillLineGaps rounds
+// ~6 bounds per window row: fourteenth session).
+inline double FloorOf(double x) {
+  if (!(std::abs(x) < 2e9)) return std::floor(x);
+  const double t = static_cast<double>(static_cast<int64_t>(x));  // x truncated, exactly
+  return t > x ? t - 1.0 : t;
+}
+inline double CeilOf(double x) {
+  if (!(std::abs(x) < 2e9)) return std::ceil(x);
+  const double t = static_cast<double>(static_cast<int64_t>(x));
+  return t < x ? t + 1.0 : t;
+}
+
+// A pixel of a row's window within kGapAlongPx along the line that counts in the centre of mass: its across
+// and its weight there (its difference less one sigma; only those with a positive weight are kept).
 struct NearPixel {
   double across;
-  int difference;
+  double weight;
 };
+// FillLineGaps tests a quotient against an edge without the division (fourteenth session): a numerator
+// further than kTestMargin (relative) from the edge times the divisor gives a quotient on the same side of
+// the edge once rounded (the roundings of the quotient and of the edge are ~1e-16 relative); nearer, it is
+// divided. Below kNormalMin a quotient's sign might be lost to underflow: divided too.
+constexpr double kTestMargin = 1e-9;
+constexpr double kNormalMin = 1e-290;
 
 struct Curve {
   double c0 = 0, s = 0, k = 0;  // column = c0 + s dr + k dr^2 about row r0
@@ -627,6 +648,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
   };
   std::vector<LinePoint> filled;
   std::vector<NearPixel> near;
+  std::vector<float> widths;  // a stretch's widths across (here: not allocated per gap)
   for (size_t i = 0; i + 1 < n; ++i) {
     const int gap = p[i + 1].row - p[i].row;
     if (gap < 2 || !joined(i, i + 1)) continue;
@@ -646,7 +668,6 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
     // The curve through the stretch's points, about the gap's first missing row, and its residual test.
     Curve curve;
     double residual2 = 0, max_length = 1.0;
-    std::vector<float> widths;
     auto fit = [&](size_t first, size_t last) {
       curve.r0 = p[i].row + 1;
       Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
@@ -702,8 +723,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       const double length = std::sqrt(1.0 + s * s);
       const double reach_across = (kGapSideShift + 1.0) * half;
       const double row_reach = (kGapAlongPx + reach_across * std::abs(s)) / length + 1.0;
-      const int r_first = ClampToIndex(std::floor(r - row_reach), rows);
-      const int r_last = ClampToIndex(std::ceil(r + row_reach), rows);
+      const int r_first = ClampToIndex(FloorOf(r - row_reach), rows);
+      const int r_last = ClampToIndex(CeilOf(r + row_reach), rows);
       // The window's columns: only those within reach_px of the curve across (at least the outer boxes'
       // edge, (kGapSideShift + 1) half widths, and the centre of mass's reach, its window from a centre
       // within a half width; plus a pixel) can count; the others are not visited. The original reach
@@ -711,48 +732,75 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       const double window = std::max(kSteepMinHalfPx, width_across);
       const double col_reach = (reach_across + kGapAlongPx) * length + 1.0;
       const double reach_px = std::min(col_reach, std::max(reach_across, half + window) * length + 1.0);
-      // visit_row(rr, near_only, visit) calls visit(column, across_at, along_at, difference_at) for each
-      // pixel of the window's row rr (the three give the pixel's across = (column - the curve's column in
-      // row rr) / L, its along from the row's point, its signed difference; each computed only if asked).
-      // The row's own pixels are summed first (a cheap rejection: the row must hold light of the line,
-      // below), then the window's. The sums are of integers (exact in any order); the pixels within
-      // kGapAlongPx along are kept, in the visiting order, for the centre of mass (its floating-point sums
-      // as another visit of the window would give them). Bit-identical to visiting the whole window each
-      // time (laser_digest --check against a build before issue 15's speed-up).
+      // visit_row(rr, near_only, visit) calls visit(column, along_x, y, difference_at) for each pixel of the
+      // window's row rr: its along from the row's point is along_x(c) / L, its across y(c) / L (the column
+      // less the curve's column in row rr), its signed difference difference_at(c). The row's own pixels are
+      // summed first (a cheap rejection: the row must hold light of the line, below), then the window's.
+      // The sums are of integers (exact in any order); the pixels within kGapAlongPx along whose weight is
+      // positive and that lie within the centre of mass's reach are kept, in the visiting order, for the
+      // centre of mass (its floating-point sums as another visit of the window would give them).
+      // Bit-identical to visiting the whole window each time (laser_digest --check against a build before
+      // issue 15's speed-ups).
+      // Fourteenth session: the tests of along and across against kGapAlongPx and the boxes' edges on their
+      // numerators (kTestMargin), a division only near an edge and for the kept pixels' across (two
+      // divisions a pixel, ~17,000 pixels a typical frame); the rows' bounds rounded inline (FloorOf).
       const int step = on.channels();
+      const double along_in = kGapAlongPx * length * (1.0 - kTestMargin),
+                   along_out = kGapAlongPx * length * (1.0 + kTestMargin);
+      // |across| L at the boxes' edges: the centre box's (half), the side boxes' inner (2 half) and outer
+      // (4 half) edges; and the centre of mass's reach (t within +-half, then the window).
+      const double edge0_in = half * length * (1.0 - kTestMargin), edge0_out = half * length * (1.0 + kTestMargin);
+      const double edge1_in = (kGapSideShift - 1.0) * half * length * (1.0 - kTestMargin),
+                   edge1_out = (kGapSideShift - 1.0) * half * length * (1.0 + kTestMargin);
+      const double edge2_in = (kGapSideShift + 1.0) * half * length * (1.0 - kTestMargin),
+                   edge2_out = (kGapSideShift + 1.0) * half * length * (1.0 + kTestMargin);
+      const double com_out = (half + window) * length * (1.0 + kTestMargin);
+      const double inv_s = 1.0 / s;
       // near_only: a row none of whose pixels lies within kGapAlongPx along is skipped (along is monotonic
       // in the column, so its two ends tell).
       auto visit_row = [&](int rr, bool near_only, auto&& visit) {
         const double cc = curve.ColumnAt(rr);
-        int c_first = ClampToIndex(std::floor(cc - reach_px), cols);
-        int c_last = ClampToIndex(std::ceil(cc + reach_px), cols);
-        auto along_at = [&](int c) { return ((c - c0) * s + (rr - r)) / length; };
+        int c_first = ClampToIndex(FloorOf(cc - reach_px), cols);
+        int c_last = ClampToIndex(CeilOf(cc + reach_px), cols);
+        auto along_x = [&](int c) { return (c - c0) * s + (rr - r); };
         if (near_only) {
-          const double a0 = along_at(c_first), a1 = along_at(c_last);
-          if ((a0 > kGapAlongPx && a1 > kGapAlongPx) || (a0 < -kGapAlongPx && a1 < -kGapAlongPx)) return;
+          // Skipped only where both ends lie beyond kGapAlongPx on one side for certain (else each pixel's
+          // own test decides: visiting more pixels than needed changes nothing).
+          const double x0 = along_x(c_first), x1 = along_x(c_last);
+          if ((x0 > along_out && x1 > along_out) || (x0 < -along_out && x1 < -along_out)) return;
           // On a sloped line only a band of the row's columns lies within kGapAlongPx along: those between
           // the columns where along is -kGapAlongPx and kGapAlongPx, a pixel more either side (at a slope
-          // of at least kGapBandMinSlope a column moves along by ~0.05 px or more, far above rounding).
+          // of at least kGapBandMinSlope a column moves along by ~0.05 px or more, far above rounding, and
+          // above the rounding of 1 / s).
           if (std::abs(s) >= kGapBandMinSlope) {
-            const double e0 = c0 + (-kGapAlongPx * length - (rr - r)) / s;
-            const double e1 = c0 + (kGapAlongPx * length - (rr - r)) / s;
+            const double e0 = c0 + (-kGapAlongPx * length - (rr - r)) * inv_s;
+            const double e1 = c0 + (kGapAlongPx * length - (rr - r)) * inv_s;
             if (std::isfinite(e0) && std::isfinite(e1)) {
-              c_first = std::max(c_first, ClampToIndex(std::floor(std::min(e0, e1)) - 1.0, cols));
-              c_last = std::min(c_last, ClampToIndex(std::ceil(std::max(e0, e1)) + 1.0, cols));
+              c_first = std::max(c_first, ClampToIndex(FloorOf(std::min(e0, e1)) - 1.0, cols));
+              c_last = std::min(c_last, ClampToIndex(CeilOf(std::max(e0, e1)) + 1.0, cols));
             }
           }
         }
         const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
         const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
-        auto across_at = [&](int c) { return (c - cc) / length; };
+        auto y_at = [&](int c) { return c - cc; };
         auto difference_at = [&](int c) { return SignedDifference(a[c * step], b[c * step]); };
-        for (int c = c_first; c <= c_last; ++c) visit(c, across_at, along_at, difference_at);
+        for (int c = c_first; c <= c_last; ++c) visit(c, along_x, y_at, difference_at);
       };
       auto box_of = [&](double across) {
         return std::abs(across) <= half                          ? 0
                : std::abs(across + kGapSideShift * half) <= half ? 1
                : std::abs(across - kGapSideShift * half) <= half ? 2
                                                                  : -1;
+      };
+      // box_of(y / L), dividing only near an edge.
+      auto box_at = [&](double y) {
+        const double ay = std::abs(y);
+        if (ay <= edge0_in) return 0;
+        if (ay >= edge0_out && ay <= edge1_in) return -1;
+        if (ay >= edge1_out && ay <= edge2_in) return y < 0 ? 1 : 2;
+        if (ay >= edge2_out) return -1;
+        return box_of(y / length);
       };
       // Contrast of the centre box over the sides' mean, per pixel, and its noise; over the whole window
       // (at least min_z times its noise), over each half (at least kGapHalfZ: the line goes on through
@@ -767,8 +815,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       // The row's own pixels of the three boxes, at any distance along (a steep line's sides lie far along).
       double own[3] = {0, 0, 0};
       int own_count[3] = {0, 0, 0};
-      visit_row(r, false, [&](int c, auto&& across_at, auto&&, auto&& difference_at) {
-        const int box = box_of(across_at(c));
+      visit_row(r, false, [&](int c, auto&&, auto&& y_at, auto&& difference_at) {
+        const int box = box_at(y_at(c));
         if (box < 0) return;
         own[box] += difference_at(c);
         ++own_count[box];
@@ -787,15 +835,27 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       };
       near.clear();
       for (int rr = r_first; rr <= r_last; ++rr) {
-        visit_row(rr, true, [&](int c, auto&& across_at, auto&& along_at, auto&& difference_at) {
-          const double along = along_at(c);
-          if (std::abs(along) > kGapAlongPx) return;
-          const double across = across_at(c);
+        visit_row(rr, true, [&](int c, auto&& along_x, auto&& y_at, auto&& difference_at) {
+          // Whether |along| <= kGapAlongPx, and along < 0 (the numerator's sign is the quotient's).
+          const double x = along_x(c);
+          const double ax = std::abs(x);
+          bool before;
+          if (ax < along_in && (ax >= kNormalMin || ax == 0)) {
+            before = x < 0;
+          } else {
+            if (ax > along_out) return;
+            const double along = x / length;
+            if (std::abs(along) > kGapAlongPx) return;
+            before = along < 0;
+          }
+          const double y = y_at(c);
           const int d = difference_at(c);
-          near.push_back({across, d});
-          const int box = box_of(across);
+          const double w = d - noise_dn;
+          // Beyond com_out, |across - t| > window for any t within +-half: never counted.
+          if (w > 0 && !(std::abs(y) > com_out)) near.push_back({y / length, w});
+          const int box = box_at(y);
           if (box < 0) return;
-          const int key = (along < 0 ? 0 : 3) + box;
+          const int key = (before ? 0 : 3) + box;
           if (key != run_key) {
             flush();
             run_key = key;
@@ -825,8 +885,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         double sw = 0, swt = 0, swtt = 0;
         for (const NearPixel& q : near) {
           if (std::abs(q.across - t) > window) continue;
-          const double w = q.difference - noise_dn;
-          if (w <= 0) continue;
+          const double w = q.weight;
           sw += w;
           swt += w * q.across;
           swtt += w * q.across * q.across;
