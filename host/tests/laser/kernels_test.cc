@@ -345,6 +345,26 @@ TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
     kept += sw_scalar != w0;
   }
   EXPECT_GT(kept, 1000);  // pixels were kept, not all rejected
+  // Pixels on the along window's edge (|along| = 8 exactly, or within 1e-12 of it), where the AVX2 loop
+  // divides to decide (its test on the numerator leaves the edge's margin undecided): kept as by the scalar
+  // loop's own division (fourteenth session).
+  int on_edge = 0;
+  for (const double dr : {-8.0, 8.0}) {
+    for (const double s : {0.0, 1e-13, -1e-13}) {
+      const int cols = 40;
+      std::vector<uint8_t> a(cols, 200), b(cols, 10);
+      const double length = std::sqrt(1 + s * s);
+      double sw_scalar = 0, swt_scalar = 0, sw_avx2 = 0, swt_avx2 = 0;
+      scalar::AcrossRowSums(a.data(), b.data(), 1, 0, cols - 1, dr, 20.0, s, length, 0.0, 30.0, 5.0, 10, 8.0,
+                            &sw_scalar, &swt_scalar);
+      AcrossRowSumsAvx2(a.data(), b.data(), 1, 0, cols - 1, dr, 20.0, s, length, 0.0, 30.0, 5.0, 10, 8.0, &sw_avx2,
+                        &swt_avx2);
+      ASSERT_EQ(0, std::memcmp(&sw_scalar, &sw_avx2, sizeof(double))) << "dr " << dr << " s " << s;
+      ASSERT_EQ(0, std::memcmp(&swt_scalar, &swt_avx2, sizeof(double))) << "dr " << dr << " s " << s;
+      on_edge += sw_scalar > 0;
+    }
+  }
+  EXPECT_GT(on_edge, 0);  // the edge's pixels were kept somewhere (|along| = 8 is within the window)
 }
 
 // SteepColumnAvx2 against its portable namesake, every bin's 8 sums bit for bit: random columns of random

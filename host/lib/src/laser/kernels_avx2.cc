@@ -273,22 +273,31 @@ __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* t, cons
 // AcrossRowSums (kernels_scalar.simd.hpp) over the columns [c, c_last], 4 at a time (the last block's lanes
 // past c_last masked off): each pixel's along, across, test and weight are the scalar loop's operations on
 // the same numbers (IEEE double, no fused multiply-add), and the weights of the pixels that pass are added
-// to the sums one by one in column order, so the sums are the same bits.
+// to the sums one by one in column order, so the sums are the same bits. Columns up to readable_last may be
+// read (a gray row's last block then takes 4 bytes at once; its lanes past c_last are masked off).
+// The along test (fourteenth session): |along| > along_px where along = num / L is decided on |num| against
+// along_px L (1 -+ kAlongMargin) for each lane, the division made only for a block with a lane within that
+// margin of the edge (or NaN), where the rounded quotient might fall on the other side; the quotient's
+// rounding is ~1e-16 relative. One division a block instead of two: the divider was this loop's bound.
+constexpr double kAlongMargin = 1e-9;
 __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsInline(const uint8_t* pa, const uint8_t* pb,
-                                                       int step, int c, int c_last, double dr, double foot_c, double s, double length,
+                                                       int step, int c, int c_last, int readable_last, double dr,
+                                                       double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
                                                        double along_px, double* sum_w, double* sum_wt) {
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
   const __m256d v_dr = _mm256_set1_pd(dr), v_sdr = _mm256_set1_pd(s * dr), v_s = _mm256_set1_pd(s);
   const __m256d v_foot = _mm256_set1_pd(foot_c), v_length = _mm256_set1_pd(length), v_t = _mm256_set1_pd(t);
   const __m256d v_half = _mm256_set1_pd(half), v_along = _mm256_set1_pd(along_px), v_level = _mm256_set1_pd(level);
+  const __m256d v_along_in = _mm256_set1_pd(along_px * length * (1.0 - kAlongMargin));
+  const __m256d v_along_out = _mm256_set1_pd(along_px * length * (1.0 + kAlongMargin));
   const __m128i lanes = _mm_setr_epi32(0, 1, 2, 3), full = _mm_set1_epi32(255);
   const __m128i headroom = _mm_set1_epi32(255 - threshold);
   double w_sum = *sum_w, wt_sum = *sum_wt;
   for (; c <= c_last; c += 4) {
     __m128i a, b;
     const int n = c_last - c + 1;  // columns left: the lanes from n on are no pixel of the row's run
-    if (n < 4) {
+    if (n < 4 && (step != 1 || c + 3 > readable_last)) {
       alignas(16) int32_t a4[4] = {0, 0, 0, 0}, b4[4] = {0, 0, 0, 0};
       for (int j = 0; j < n; ++j) {
         a4[j] = pa[static_cast<ptrdiff_t>(c + j) * step];
@@ -312,13 +321,18 @@ __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsI
     const __m128i saturated = _mm_andnot_si128(_mm_cmpgt_epi32(b, headroom), _mm_cmpeq_epi32(a, full));
     const __m128i d = _mm_blendv_epi8(_mm_max_epi32(_mm_sub_epi32(a, b), _mm_setzero_si128()), full, saturated);
     const __m256d dc = _mm256_sub_pd(_mm256_cvtepi32_pd(_mm_add_epi32(_mm_set1_epi32(c), lanes)), v_foot);
-    const __m256d along = _mm256_div_pd(_mm256_add_pd(v_dr, _mm256_mul_pd(v_s, dc)), v_length);
+    const __m256d along_num = _mm256_add_pd(v_dr, _mm256_mul_pd(v_s, dc));
+    const __m256d along_abs = _mm256_and_pd(along_num, abs_mask);
+    __m256d along_beyond = _mm256_cmp_pd(along_abs, v_along_out, _CMP_GT_OQ);
+    if (_mm256_movemask_pd(_mm256_or_pd(along_beyond, _mm256_cmp_pd(along_abs, v_along_in, _CMP_LT_OQ))) != 0xf) {
+      const __m256d along = _mm256_div_pd(along_num, v_length);  // a lane near the edge: as the scalar loop
+      along_beyond = _mm256_cmp_pd(_mm256_and_pd(along, abs_mask), v_along, _CMP_GT_OQ);
+    }
     const __m256d across = _mm256_div_pd(_mm256_sub_pd(dc, v_sdr), v_length);
     const __m256d w = _mm256_sub_pd(_mm256_cvtepi32_pd(d), v_level);
     // Kept: not (|along| > along_px), not (|across - t| > half), w > 0 (the scalar loop's tests).
     const __m256d out = _mm256_or_pd(
-        _mm256_cmp_pd(_mm256_and_pd(along, abs_mask), v_along, _CMP_GT_OQ),
-        _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ));
+        along_beyond, _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ));
     __m256d keep = _mm256_andnot_pd(out, _mm256_cmp_pd(w, _mm256_setzero_pd(), _CMP_GT_OQ));
     if (n < 4) keep = _mm256_and_pd(keep, _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_cmplt_epi32(lanes, _mm_set1_epi32(n)))));
     if (_mm256_movemask_pd(keep) == 0) continue;
@@ -341,7 +355,8 @@ __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const 
                                                        int c_last, double dr, double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
                                                        double along_px, double* sum_w, double* sum_wt) {
-  AcrossRowSumsInline(pa, pb, step, c, c_last, dr, foot_c, s, length, t, half, level, threshold, along_px, sum_w, sum_wt);
+  AcrossRowSumsInline(pa, pb, step, c, c_last, c_last, dr, foot_c, s, length, t, half, level, threshold, along_px, sum_w,
+                      sum_wt);
 }
 
 // ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last] of the frames, `channels` bytes a
@@ -354,17 +369,21 @@ __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, si
                                                           double foot_c, double t, double half, double level,
                                                           int threshold, double along_px, double* sum_w,
                                                           double* sum_wt) {
+  // The run's along bounds by 1 / s (a column more either side: a column moves along by |s| / L >= 0.7 px
+  // on these steep lines, far above the rounding of 1 / s; every pixel of the run is tested itself).
+  const double inv_s = 1.0 / s;
   for (int r = r_first; r <= r_last; ++r) {
     const double line = a + s * r;
     const double dr0 = r - r0;
-    const double along_a = foot_c + (-dr0 - along_px * length) / s;
-    const double along_b = foot_c + (-dr0 + along_px * length) / s;
+    const double along_a = foot_c + (-dr0 - along_px * length) * inv_s;
+    const double along_b = foot_c + (-dr0 + along_px * length) * inv_s;
     const int c_first = std::max({0, static_cast<int>(std::ceil(line + (t - half) * length - 1.0)),
                                   static_cast<int>(std::floor(std::min(along_a, along_b))) - 1});
     const int c_last = std::min({cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)),
                                  static_cast<int>(std::ceil(std::max(along_a, along_b))) + 1});
     AcrossRowSumsInline(on0 + static_cast<size_t>(r) * on_stride, off0 + static_cast<size_t>(r) * off_stride, channels,
-                        c_first, c_last, dr0, foot_c, s, length, t, half, level, threshold, along_px, sum_w, sum_wt);
+                        c_first, c_last, cols - 1, dr0, foot_c, s, length, t, half, level, threshold, along_px, sum_w,
+                        sum_wt);
   }
 }
 
