@@ -527,6 +527,66 @@ TEST(KernelsTest, ExtractionIsBitIdenticalOnEveryPath) {
   }
   EXPECT_GT(points, 1000u);  // the frames hold lines
 }
+
+// The gap step's window rows in AVX2 (GapWindowAvx2, gaps.cc's FillLineGaps, fourteenth session) against its
+// scalar loop, every point bit for bit: a faint curved line (its slope from 0.05 to ~3 columns per row, so
+// both the near-vertical windows and the banded steep ones) on a lit, noisy background whose rows drop
+// below the row pass's threshold in runs of 2-6 (rows the gap step fills), in gray frames and in the red
+// channel of color ones (a pixel every 3 bytes), near the frame's edges too.
+TEST(KernelsTest, GapWindowAvx2MatchesScalar) {
+  if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
+  std::mt19937 rng(53);
+  std::normal_distribution<double> noise(0.0, 1.6);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  size_t filled = 0;
+  for (int trial = 0; trial < 12; ++trial) {
+    const int rows = 240, cols = trial % 4 == 3 ? 150 : 400, channels = trial % 2 == 0 ? 1 : 3;
+    cv::Mat on(rows, cols, CV_8UC(channels)), off(rows, cols, CV_8UC(channels));
+    const double c_start = trial % 4 == 3 ? 6 + 10 * unit(rng) : 40 + 200 * unit(rng);
+    const double slope = (0.05 + 1.5 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1), bend = 0.004 * (unit(rng) - 0.5);
+    int dim_left = 0;
+    for (int r = 0; r < rows; ++r) {
+      if (dim_left == 0 && unit(rng) < 0.08) dim_left = 2 + static_cast<int>(5 * unit(rng));
+      const double amplitude = dim_left > 0 ? 9.0 : 40.0;
+      if (dim_left > 0) --dim_left;
+      const double centre = c_start + std::abs(slope) * r + bend * r * r;
+      const double sigma = 1.5 * std::sqrt(1 + slope * slope);
+      for (int x = 0; x < cols; ++x) {
+        const double off_value = 60 + 10 * std::sin(0.07 * x + 0.03 * r) + noise(rng);
+        const double u = (x - (slope > 0 ? centre : cols - 1 - centre)) / sigma;
+        const double on_value = off_value + amplitude * std::exp(-0.5 * u * u) + noise(rng);
+        for (int k = 0; k < channels; ++k) {
+          off.ptr<uint8_t>(r)[x * channels + k] = cv::saturate_cast<uint8_t>(k == channels - 1 ? off_value : 30.0);
+          on.ptr<uint8_t>(r)[x * channels + k] = cv::saturate_cast<uint8_t>(k == channels - 1 ? on_value : 30.0);
+        }
+      }
+    }
+    std::vector<LinePoint> wide, narrow;
+    for (const bool avx2 : {true, false}) {
+      internal::AllowVectorExtensions(avx2, true);
+      ExtractOptions options;
+      options.smooth_half_rows = 0;
+      options.steep_across = false;
+      options.line_ends = false;
+      options.junction_rows = false;
+      Line line;
+      EXPECT_TRUE(LineExtractor(options).Extract(on, off, &line).ok());
+      internal::AllowVectorExtensions(true, true);
+      (avx2 ? wide : narrow) = line.points;
+      if (avx2) filled += static_cast<size_t>(line.stats.gap_filled);
+    }
+    ASSERT_EQ(wide.size(), narrow.size()) << "trial " << trial;
+    for (size_t j = 0; j < wide.size(); ++j) {
+      const LinePoint &a = wide[j], &b = narrow[j];
+      ASSERT_TRUE(a.row == b.row && a.flags == b.flags && std::memcmp(&a.column, &b.column, 4) == 0 &&
+                  std::memcmp(&a.peak, &b.peak, 4) == 0 && std::memcmp(&a.width, &b.width, 4) == 0 &&
+                  std::memcmp(&a.quality, &b.quality, 4) == 0 &&
+                  std::memcmp(&a.uncertainty_px, &b.uncertainty_px, 4) == 0)
+          << "trial " << trial << " point " << j << " row " << a.row;
+    }
+  }
+  EXPECT_GT(filled, 50u) << filled;  // the gap step filled rows (so its window rows were summed)
+}
 #endif  // ROTOSCAN_HAVE_SSSE3_PATH
 
 }  // namespace

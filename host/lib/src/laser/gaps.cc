@@ -84,6 +84,7 @@
 #include <Eigen/Core>
 
 #include "extract_steps.h"
+#include "kernels.h"
 
 namespace rotoscan::laser::detail {
 namespace {
@@ -141,10 +142,7 @@ inline double CeilOf(double x) {
 
 // A pixel of a row's window within kGapAlongPx along the line that counts in the centre of mass: its across
 // and its weight there (its difference less one sigma; only those with a positive weight are kept).
-struct NearPixel {
-  double across;
-  double weight;
-};
+using NearPixel = GapPixel;  // kernels.h
 // FillLineGaps tests a quotient against an edge without the division (fourteenth session): a numerator
 // further than kTestMargin (relative) from the edge times the divisor gives a quotient on the same side of
 // the edge once rounded (the roundings of the quotient and of the edge are ~1e-16 relative); nearer, it is
@@ -647,7 +645,12 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
     return gap >= 1 && gap <= kGapMaxRows && std::abs(p[b].column - p[a].column) <= kSteepMaxStepPx * gap;
   };
   std::vector<LinePoint> filled;
-  std::vector<NearPixel> near;
+  std::vector<NearPixel> near;  // [0, near_count): the window's pixels kept for the centre of mass
+  size_t near_count = 0;
+  std::vector<GapSpan> spans;  // a window's rows
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+  const bool avx2 = HaveAvx2();  // the window rows 4 pixels at a time (GapWindowRowAvx2, the same bits)
+#endif
   std::vector<float> widths;  // a stretch's widths across (here: not allocated per gap)
   for (size_t i = 0; i + 1 < n; ++i) {
     const int gap = p[i + 1].row - p[i].row;
@@ -758,7 +761,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       const double inv_s = 1.0 / s;
       // near_only: a row none of whose pixels lies within kGapAlongPx along is skipped (along is monotonic
       // in the column, so its two ends tell).
-      auto visit_row = [&](int rr, bool near_only, auto&& visit) {
+      auto visit_row = [&](int rr, bool near_only, auto&& visit, auto&& whole_row) {
         const double cc = curve.ColumnAt(rr);
         int c_first = ClampToIndex(FloorOf(cc - reach_px), cols);
         int c_last = ClampToIndex(CeilOf(cc + reach_px), cols);
@@ -783,6 +786,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         }
         const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
         const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
+        if (whole_row(a, b, cc, c_first, c_last)) return;
         auto y_at = [&](int c) { return c - cc; };
         auto difference_at = [&](int c) { return SignedDifference(a[c * step], b[c * step]); };
         for (int c = c_first; c <= c_last; ++c) visit(c, along_x, y_at, difference_at);
@@ -820,7 +824,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         if (box < 0) return;
         own[box] += difference_at(c);
         ++own_count[box];
-      });
+      }, [](const uint8_t*, const uint8_t*, double, int, int) { return false; });
       if (z_of(own[0], own[1], own[2], own_count[0], own_count[1], own_count[2]) < kGapHalfZ) continue;
       // The matched filter: the box on the curve, and the boxes kGapSideShift half widths to either side;
       // each split into the halves before and after the row's point along the line.
@@ -833,28 +837,62 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
         sum[run_key / 3][run_key % 3] += run_sum;
         count[run_key / 3][run_key % 3] += run_count;
       };
-      near.clear();
+      near_count = 0;
+      // The window's rows that may hold pixels within kGapAlongPx along, and their columns.
+      spans.clear();
+      size_t span_pixels = 0;
       for (int rr = r_first; rr <= r_last; ++rr) {
-        visit_row(rr, true, [&](int c, auto&& along_x, auto&& y_at, auto&& difference_at) {
+        visit_row(rr, true, [](int, auto&&, auto&&, auto&&) {},
+                  [&](const uint8_t* a, const uint8_t* b, double cc, int c_first, int c_last) {
+                    if (c_last >= c_first) {
+                      spans.push_back({a, b, cc, rr - r, c_first, c_last});
+                      span_pixels += static_cast<size_t>(c_last - c_first + 1) + 4;
+                    }
+                    return true;
+                  });
+      }
+      if (near.size() < span_pixels) near.resize(span_pixels);
+      bool done = false;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+      if (avx2) {  // all the rows' pixels 4 at a time (GapWindowAvx2, the same bits), unless one is undecided
+        const GapRow terms{c0, s, length, along_in, along_out, kNormalMin, edge0_in, edge0_out, edge1_in,
+                           edge1_out, edge2_in, edge2_out, com_out, noise_dn};
+        int64_t sums[6] = {0, 0, 0, 0, 0, 0}, counts[6] = {0, 0, 0, 0, 0, 0};
+        done = GapWindowAvx2(spans.data(), spans.size(), step, cols - 1, terms, sums, counts, near.data(), &near_count);
+        if (done) {
+          for (int k = 0; k < 6; ++k) {
+            sum[k / 3][k % 3] += static_cast<double>(sums[k]);
+            count[k / 3][k % 3] += static_cast<int>(counts[k]);
+          }
+        } else {
+          near_count = 0;
+        }
+      }
+#endif
+      for (size_t j = 0; j < spans.size() && !done; ++j) {
+        const GapSpan& span = spans[j];
+        const int rr = r + span.dr;
+        const double cc = span.cc;
+        for (int c = span.c_first; c <= span.c_last; ++c) {
           // Whether |along| <= kGapAlongPx, and along < 0 (the numerator's sign is the quotient's).
-          const double x = along_x(c);
+          const double x = (c - c0) * s + (rr - r);
           const double ax = std::abs(x);
           bool before;
           if (ax < along_in && (ax >= kNormalMin || ax == 0)) {
             before = x < 0;
           } else {
-            if (ax > along_out) return;
+            if (ax > along_out) continue;
             const double along = x / length;
-            if (std::abs(along) > kGapAlongPx) return;
+            if (std::abs(along) > kGapAlongPx) continue;
             before = along < 0;
           }
-          const double y = y_at(c);
-          const int d = difference_at(c);
+          const double y = c - cc;
+          const int d = SignedDifference(span.a[c * step], span.b[c * step]);
           const double w = d - noise_dn;
           // Beyond com_out, |across - t| > window for any t within +-half: never counted.
-          if (w > 0 && !(std::abs(y) > com_out)) near.push_back({y / length, w});
+          if (w > 0 && !(std::abs(y) > com_out)) near[near_count++] = {y / length, w};
           const int box = box_at(y);
-          if (box < 0) return;
+          if (box < 0) continue;
           const int key = (before ? 0 : 3) + box;
           if (key != run_key) {
             flush();
@@ -864,7 +902,7 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
           }
           run_sum += d;
           ++run_count;
-        });
+        }
       }
       flush();
       const double z = z_of(sum[0][0] + sum[1][0], sum[0][1] + sum[1][1], sum[0][2] + sum[1][2],
@@ -883,7 +921,8 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       bool ok = true;
       for (int iteration = 0; iteration < kSteepIterations && ok; ++iteration) {
         double sw = 0, swt = 0, swtt = 0;
-        for (const NearPixel& q : near) {
+        for (size_t k = 0; k < near_count; ++k) {
+          const NearPixel& q = near[k];
           if (std::abs(q.across - t) > window) continue;
           const double w = q.weight;
           sw += w;

@@ -65,6 +65,27 @@ inline void FlaggedOutliers(const float* raw, const double* a, const double* b, 
   }
 }
 
+// gaps.cc's window rows (FillLineGaps, fourteenth session): a pixel of column c of the row is within
+// kGapAlongPx along when x = (c - c0) s + dr is, for certain, within along_in (and its sign tells which half),
+// and beyond it when x is beyond along_out; its across is y / length, y = c - cc, whose box the edges tell
+// (|y| up to edge0_in: the centre box; edge0_out to edge1_in: none; edge1_out to edge2_in: a side box, y's
+// sign which; from edge2_out: none); a kept pixel for the centre of mass has weight d - noise_dn > 0 and |y|
+// not beyond com_out.
+struct GapRow {
+  double c0, s, length, along_in, along_out, normal_min;
+  double edge0_in, edge0_out, edge1_in, edge1_out, edge2_in, edge2_out, com_out, noise_dn;
+};
+// A window row: its laser channel's bytes (row start), the curve's column cc in it, its row less the gap row's
+// (dr), its columns.
+struct GapSpan {
+  const uint8_t* a;
+  const uint8_t* b;
+  double cc;
+  int dr, c_first, c_last;
+};
+struct GapPixel {
+  double across, weight;
+};
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
 // Whether the CPU has the extension and the tests allow it (dispatch.cc).
 bool HaveSsse3();
@@ -113,6 +134,15 @@ __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, si
                                                           double foot_c, double t, double half, double level,
                                                           int threshold, double along_px, double* sum_w,
                                                           double* sum_wt);
+// The pixels of a window's rows (`step` bytes a pixel; columns up to readable_last may be read), 4 at a time:
+// the differences of the pixels within kGapAlongPx added to sums[half * 3 + box] (half 0: along < 0) and
+// counted in counts[], the kept ones appended to near[*near_count...] (room for each row's columns and 4
+// more), all in row and column order. False, with nothing added or counted, where a pixel's test is left
+// undecided (within the margins of an edge, or NaN): gaps.cc's scalar loop takes the window then. Bit for
+// bit as that loop.
+__attribute__((target("avx2"))) bool GapWindowAvx2(const GapSpan* spans, size_t span_count, int step,
+                                                   int readable_last, const GapRow& g, int64_t* sums,
+                                                   int64_t* counts, GapPixel* near, size_t* near_count);
 // steep.cc's MeasureRun over its columns (their crossing rows, along coordinates and nearest fits, from
 // c_first), each column's rows bounded as there, then SteepColumnAvx2; bit for bit. A steep fit as it reads
 // it (steep.cc's SteepFit): its half width in rows, the along

@@ -387,6 +387,106 @@ __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, si
   }
 }
 
+// GapWindowRowAvx2 (kernels.h): the tests on the numerators as gaps.cc's loop makes them, on the same numbers
+// (IEEE double, no fused multiply-add); a lane left undecided returns false before anything is added. The
+// signed difference a - b (gaps.cc's SignedDifference: 255 - b for a saturated a is a - b), its sums per key
+// in 64-bit lanes (whole numbers: exact in any order, as the scalar loop's double sums of them are).
+__attribute__((target("avx2"))) bool GapWindowAvx2(const GapSpan* spans, size_t span_count, int step,
+                                                   int readable_last, const GapRow& g, int64_t* sums,
+                                                   int64_t* counts, GapPixel* near, size_t* near_count) {
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
+  const __m256d zero = _mm256_setzero_pd();
+  const __m256d v_c0 = _mm256_set1_pd(g.c0), v_s = _mm256_set1_pd(g.s), v_length = _mm256_set1_pd(g.length);
+  const __m256d along_in = _mm256_set1_pd(g.along_in), along_out = _mm256_set1_pd(g.along_out);
+  const __m256d normal_min = _mm256_set1_pd(g.normal_min);
+  const __m256d e0_in = _mm256_set1_pd(g.edge0_in), e0_out = _mm256_set1_pd(g.edge0_out);
+  const __m256d e1_in = _mm256_set1_pd(g.edge1_in), e1_out = _mm256_set1_pd(g.edge1_out);
+  const __m256d e2_in = _mm256_set1_pd(g.edge2_in), e2_out = _mm256_set1_pd(g.edge2_out);
+  const __m256d com_out = _mm256_set1_pd(g.com_out), noise = _mm256_set1_pd(g.noise_dn);
+  const __m128i lanes = _mm_setr_epi32(0, 1, 2, 3);
+  __m256i sum[6], count[6];
+  for (int k = 0; k < 6; ++k) sum[k] = count[k] = _mm256_setzero_si256();
+  size_t kept = *near_count;
+  for (size_t j = 0; j < span_count; ++j) {
+  const uint8_t* const a = spans[j].a;
+  const uint8_t* const b = spans[j].b;
+  const int c_last = spans[j].c_last;
+  const __m256d v_dr = _mm256_set1_pd(static_cast<double>(spans[j].dr)), v_cc = _mm256_set1_pd(spans[j].cc);
+  for (int c = spans[j].c_first; c <= c_last; c += 4) {
+    const int n = c_last - c + 1;  // columns left: lanes from n on are masked off
+    __m128i va, vb;
+    if (step == 1 && c + 3 <= readable_last) {
+      int32_t a4, b4;
+      __builtin_memcpy(&a4, a + c, 4);
+      __builtin_memcpy(&b4, b + c, 4);
+      va = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(a4));
+      vb = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(b4));
+    } else {
+      alignas(16) int32_t a4[4] = {0, 0, 0, 0}, b4[4] = {0, 0, 0, 0};
+      for (int q = 0; q < std::min(n, 4); ++q) {
+        a4[q] = a[static_cast<ptrdiff_t>(c + q) * step];
+        b4[q] = b[static_cast<ptrdiff_t>(c + q) * step];
+      }
+      va = _mm_load_si128(reinterpret_cast<const __m128i*>(a4));
+      vb = _mm_load_si128(reinterpret_cast<const __m128i*>(b4));
+    }
+    const __m256d valid =
+        n >= 4 ? _mm256_castsi256_pd(_mm256_set1_epi64x(-1))
+               : _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_cmplt_epi32(lanes, _mm_set1_epi32(n))));
+    const __m256d cd = _mm256_cvtepi32_pd(_mm_add_epi32(_mm_set1_epi32(c), lanes));
+    const __m256d x = _mm256_add_pd(_mm256_mul_pd(_mm256_sub_pd(cd, v_c0), v_s), v_dr);
+    const __m256d ax = _mm256_and_pd(x, abs_mask);
+    const __m256d in = _mm256_and_pd(_mm256_cmp_pd(ax, along_in, _CMP_LT_OQ),
+                                     _mm256_or_pd(_mm256_cmp_pd(ax, normal_min, _CMP_GE_OQ),
+                                                  _mm256_cmp_pd(ax, zero, _CMP_EQ_OQ)));
+    const __m256d out = _mm256_cmp_pd(ax, along_out, _CMP_GT_OQ);
+    if (_mm256_movemask_pd(_mm256_andnot_pd(_mm256_or_pd(in, out), valid)) != 0) return false;
+    const __m256d near_lanes = _mm256_and_pd(in, valid);
+    if (_mm256_movemask_pd(near_lanes) == 0) continue;
+    const __m256d y = _mm256_sub_pd(cd, v_cc);
+    const __m256d ay = _mm256_and_pd(y, abs_mask);
+    const __m256d box0 = _mm256_cmp_pd(ay, e0_in, _CMP_LE_OQ);
+    const __m256d none = _mm256_or_pd(_mm256_and_pd(_mm256_cmp_pd(ay, e0_out, _CMP_GE_OQ), _mm256_cmp_pd(ay, e1_in, _CMP_LE_OQ)),
+                                      _mm256_cmp_pd(ay, e2_out, _CMP_GE_OQ));
+    const __m256d side = _mm256_and_pd(_mm256_cmp_pd(ay, e1_out, _CMP_GE_OQ), _mm256_cmp_pd(ay, e2_in, _CMP_LE_OQ));
+    if (_mm256_movemask_pd(_mm256_andnot_pd(_mm256_or_pd(_mm256_or_pd(box0, none), side), near_lanes)) != 0) return false;
+    const __m128i d = _mm_sub_epi32(va, vb);
+    const __m256d w = _mm256_sub_pd(_mm256_cvtepi32_pd(d), noise);
+    const __m256d push = _mm256_andnot_pd(_mm256_cmp_pd(ay, com_out, _CMP_GT_OQ),
+                                          _mm256_and_pd(near_lanes, _mm256_cmp_pd(w, zero, _CMP_GT_OQ)));
+    if (const int pm = _mm256_movemask_pd(push)) {
+      alignas(32) double across[4], weight[4];
+      _mm256_store_pd(across, _mm256_div_pd(y, v_length));
+      _mm256_store_pd(weight, w);
+      for (int k = 0; k < 4; ++k)
+        if ((pm >> k) & 1) near[kept++] = {across[k], weight[k]};
+    }
+    const __m256i d64 = _mm256_cvtepi32_epi64(d);
+    const __m256i before = _mm256_castpd_si256(_mm256_and_pd(near_lanes, _mm256_cmp_pd(x, zero, _CMP_LT_OQ)));
+    const __m256i after = _mm256_castpd_si256(_mm256_andnot_pd(_mm256_cmp_pd(x, zero, _CMP_LT_OQ), near_lanes));
+    const __m256i negative = _mm256_castpd_si256(_mm256_cmp_pd(y, zero, _CMP_LT_OQ));
+    const __m256i box[3] = {_mm256_castpd_si256(box0), _mm256_and_si256(_mm256_castpd_si256(side), negative),
+                            _mm256_andnot_si256(negative, _mm256_castpd_si256(side))};
+    for (int k = 0; k < 3; ++k) {
+      const __m256i mb = _mm256_and_si256(box[k], before), ma = _mm256_and_si256(box[k], after);
+      sum[k] = _mm256_add_epi64(sum[k], _mm256_and_si256(d64, mb));
+      count[k] = _mm256_sub_epi64(count[k], mb);
+      sum[k + 3] = _mm256_add_epi64(sum[k + 3], _mm256_and_si256(d64, ma));
+      count[k + 3] = _mm256_sub_epi64(count[k + 3], ma);
+    }
+  }
+  }
+  for (int k = 0; k < 6; ++k) {
+    alignas(32) int64_t s4[4], c4[4];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(s4), sum[k]);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(c4), count[k]);
+    sums[k] += s4[0] + s4[1] + s4[2] + s4[3];
+    counts[k] += c4[0] + c4[1] + c4[2] + c4[3];
+  }
+  *near_count = kept;
+  return true;
+}
+
 // SteepColumn (kernels_scalar.simd.hpp) with each bin's 8 sums added to as two vectors: the same additions
 // in the same order. Each term is a whole number under 2^53 (the caller sees to it: rows and columns under
 // 2^20), so exact here and in the scalar loop: d r^2 may be formed as d (r^2) rather than (d r) r, and
