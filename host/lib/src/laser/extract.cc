@@ -90,7 +90,8 @@
 // gates, per row on 3 steps x 2 lasers: textured, the divided rows over 1 px 155 of 1,979 against 978
 // undivided (RMS within 2 px 0.58 against 1.23); glossy, 16 rows divided at a sphere's limb, where shading
 // passes the gates (the laser, coming from elsewhere, is not shaded like the ambient light): 4 over 1 px
-// against 1 (README.md's figures include it). The
+// against 1 (README.md's figures include it; since the fourteenth session a single gradual monotone ramp
+// is taken for shading on the webcam's frames, kShadingRampNum in extract_steps.h). The
 // 2 px blur is the webcam's; on frames blurred 1.2 px alone it over-blurs and the division removes only
 // about half the pull (RealFramesTest.AlbedoStepInsideTheLineIsDividedOut).
 //
@@ -481,8 +482,8 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     double column;
     const size_t index = line->points.size();
     LinePoint& p = line->points.emplace_back();
-    if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, flags, &p, &terms[index],
-                              &column)) {
+    if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, flags,
+                              stats.noise_on_lit, &p, &terms[index], &column)) {
       line->points.pop_back();
       ++stats.bad_width;
       continue;

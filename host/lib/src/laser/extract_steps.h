@@ -61,6 +61,25 @@ constexpr int kAlbedoMinOffDn = 12;
 // 71 -> 54 at f/2.4; glossy and Spot unchanged). Lower (1-2 DN) divides by the floor, not the albedo.
 constexpr int kAlbedoMinLowDn = 3;
 constexpr int kAlbedoEdgeSpanPx = 4;
+// A single gradual ramp is shading, not albedo (issue 15, fourteenth session, rfglossy4; applied only on
+// frames whose noise was measured on lit pixels): where the steepest change over kAlbedoEdgeSpanPx holds
+// less than kShadingRampNum / kShadingRampDen of the range and the row is monotone over the window (its
+// total variation under kShadingMonotoneNum / kShadingMonotoneDen of the range), the row is not divided.
+// On the glossy webcam set (a white sphere and cylinder: no albedo edge at all) the rows divided at the
+// sphere's lower limb, where the lamp's shading falls from ~73 DN to the black level over ~8 px, passed
+// the half-range gate (steepest 0.50-0.60 of the range in 36 of its 67 divided object rows, 8 steps x 2
+// lasers, f/4, per row without smoothing or steep step); the division pulled them to the dark side: 12 of
+// those 36 over 1 px across against 2 for the plain centre of mass (f/2.4: 40 rows, 18 against 5). All of
+// them monotone (total variation < 1.2 x the range: 36 of 36; 35 of 40). The textured set's divided rows
+// in that band: 150 (f/4), 142 (f/2.4); the division helps the non-monotone ones (two edges: a dark cell's
+// strip; 8 over 1 px against 17, f/2.4 3 against 18) and is even on the monotone ones (32 rows: 7 against
+// 7; 26: 2 against 3), so the gate takes only the monotone ones. bench accuracy, 8 steps, all lit rows over
+// 1 px across: glossy f/4 1.533 -> 1.378 % (object 1.629 -> 1.370 %), f/2.4 1.177 -> 1.053 % (object 1.189 ->
+// 0.982 %); textured unchanged at both (0.862 %, 1.114 %; its RMS across +0.001 px at f/4); on 6, 7 and 12
+// steps (not used to choose it) glossy 0.04-0.30 points lower, textured 0-2 rows more (README.md, issue 15).
+// ObjectRowsTest.GlossyLimbShadingIsNotDividedOut checks it on frames of other seeds.
+constexpr int kShadingRampNum = 3, kShadingRampDen = 5;
+constexpr int kShadingMonotoneNum = 6, kShadingMonotoneDen = 5;
 constexpr int kAlbedoMinLevelPx = 3;
 constexpr int kAlbedoStepDn = 4;
 // The laser-off row's edge is sharp where its steepest change over two pixels holds at least
@@ -335,7 +354,10 @@ const double* AlbedoBlurWeights();
 const float* AlbedoPowerTableValues();
 // Whether the laser-off row b changes inside [first, last] (an albedo edge inside the line); with
 // narrow_bright, a bright level only kAlbedoNarrowBrightPx wide counts where the row is blurred.
-bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright = false);
+// With shading_ramps (frames whose noise was measured on lit pixels), a single gradual ramp is shading and
+// does not count (kShadingRampNum).
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright = false,
+                      bool shading_ramps = false);
 // The centre of mass of the difference d divided by the laser-off row b (blurred, or itself where its edge
 // is sharp and the laser-on row a does not saturate: kAlbedoSharpEdgeNum), over the half-maximum extent
 // [first, last] widened by its width each side (kAlbedoSharpReach widths where sharp); negative when it
@@ -349,10 +371,13 @@ double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b,
                            int last);
 
 // Step 5, in the row: the point of row `row` from its chosen candidate (sets row, column, peak and flags
-// of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's continuity test
-// reads it); false when the estimator fails (counted as bad width by the caller). `flags` are step 4's.
+// of *point; the rest by ScorePoints), its terms, and its centre in double in *column (the next row's
+// continuity test reads it); false when the estimator fails (counted as bad width by the caller). `flags` are
+// step 4's. noise_on_lit: the frame's noise was measured on lit pixels (LineStats::noise_on_lit; the
+// shading-ramp rule).
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
-                  const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column);
+                  const ExtractOptions& o, uint8_t flags, bool noise_on_lit, LinePoint* point,
+                  PointTerms* terms, double* column);
 
 // Step 5, after the row loop: each point's width, uncertainty and quality from its terms, both scaled by
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided
