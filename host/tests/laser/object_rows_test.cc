@@ -1336,5 +1336,154 @@ TEST(ObjectRowsTest, GlossyLimbShadingIsNotDividedOut) {
   }
 }
 
+// Issue 15 (rfglossy4): the object's rows over 1 px across on the bench's own frames, by place, each with
+// what the steps did and what the light itself shows. Opt-in (ROTOSCAN_BENCH_ROWS=glossy or textured;
+// ROTOSCAN_BENCH_F=2.4 for f/2.4, ROTOSCAN_OBJECT_ROWS_STEPS for another turn than the bench's 8 steps, ~15
+// s; ROTOSCAN_BENCH_ROWS_DUMP=1 prints each row's difference, laser-on and laser-off pixels, noisy and
+// noise-free). The frames are `rotoscan bench accuracy`'s (Simulate's seeds: pose -1, every frame rendered)
+// and the rows its object rows (an object's truth in the row; the distance across to any true line), so the
+// count must equal CompareWithTruthByPart's. Per row: the default centre, the row's own (no smoothing) and
+// without the steep step too; the noise-free render's centre of mass (no noise, speckle, MJPEG, ambient
+// change: the light itself, with the specular lobe); the rows to the object's line end, the true slope, the
+// table's line within 6 rows. Places, first match: glint (kFlagGlint); past a depth edge (the truth jumps by
+// over 20 px within 3 rows: the line's blurred tail past its occluded end); at the table's line (within 6
+// rows); a rim (within 8 rows of the line's end, the truth over 6 px per row: the side line's tail where the
+// truth is a flat top's faint line); a grazing apex (the same, 2-6 px per row: the sphere's top, where its
+// line begins); a line's end (within 4 rows); divided (kFlagAlbedoEdge); the light shifted (the noise-free
+// centre over 0.5 px off); else the rest (speckle). README.md, issue 15, has the figures.
+TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
+  const char* set = std::getenv("ROTOSCAN_BENCH_ROWS");
+  if (set == nullptr || *set == '\0') GTEST_SKIP() << "opt-in: ROTOSCAN_BENCH_ROWS=glossy|textured";
+  const char* f_env = std::getenv("ROTOSCAN_BENCH_F");
+  const double f_number = f_env != nullptr ? std::atof(f_env) : 4.0;
+  const int steps = EnvInt("ROTOSCAN_OBJECT_ROWS_STEPS", 8);
+  const bool dump = EnvInt("ROTOSCAN_BENCH_ROWS_DUMP", 0) != 0;
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath(std::string("scenes/") + set + "-webcam.json"));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  for (sim::LaserModel& laser : scene->laser) laser.f_number = f_number;
+  auto renderer = sim::Renderer::Create(*scene);
+  auto clean_renderer = sim::Renderer::Create(testing::NoiseFreeScene(*scene, false));
+  ASSERT_TRUE(renderer.ok() && clean_renderer.ok());
+  const ExtractOptions options;
+  ExtractOptions raw_options = options, unsteep_options = options;
+  raw_options.smooth_half_rows = 0;
+  unsteep_options.smooth_half_rows = 0;
+  unsteep_options.steep_across = false;
+  LineExtractor extractor(options), raw_extractor(raw_options), unsteep_extractor(unsteep_options);
+  size_t bench_lit = 0, bench_over = 0;
+  int lit = 0, over = 0;
+  std::map<std::string, int> by_place;
+  for (int step = 0; step < steps; ++step) {
+    const double angle = step * 2.0 * 3.14159265358979323846 / steps;
+    const uint64_t seed = sim::FrameSeed(scene->seed, -1, step, 0);
+    const sim::RenderedStep frames = (*renderer)->RenderStep(angle, seed);
+    const sim::RenderedStep clean = (*clean_renderer)->RenderStep(angle, seed);
+    cv::Mat off, clean_off;
+    cv::extractChannel(frames.frames[2], off, 2);
+    cv::extractChannel(clean.frames[2], clean_off, 2);
+    for (int k = 0; k < 2; ++k) {
+      const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
+      const testing::TruthByRow t = testing::TruthRows(truth);
+      std::map<int, std::vector<double>> object_by_row, table_by_row;
+      for (const bundle::LinePoint& q : truth)
+        (q.object ? object_by_row : table_by_row)[q.row].push_back(q.column);
+      Line line, raw_line, unsteep_line;
+      ASSERT_TRUE(extractor.Extract(frames.frames[k], frames.frames[2], &line).ok());
+      ASSERT_TRUE(raw_extractor.Extract(frames.frames[k], frames.frames[2], &raw_line).ok());
+      ASSERT_TRUE(unsteep_extractor.Extract(frames.frames[k], frames.frames[2], &unsteep_line).ok());
+      const pipeline::LineAccuracyParts parts = pipeline::CompareWithTruthByPart(line, truth, 1.0);
+      bench_lit += parts.object.truth_rows;
+      bench_over += parts.object.across_outliers;
+      cv::Mat on, clean_on;
+      cv::extractChannel(frames.frames[k], on, 2);
+      cv::extractChannel(clean.frames[k], clean_on, 2);
+      auto across_in = [&](const Line& l, int row) {
+        for (const LinePoint& q : l.points)
+          if (q.row == row) return pipeline::DistanceAcrossLine(q.column, row, t.all);
+        return -1.0;
+      };
+      for (const auto& [row, is_object] : t.object) lit += is_object;
+      for (const LinePoint& p : line.points) {
+        const auto o = t.object.find(p.row);
+        if (o == t.object.end() || !o->second) continue;
+        const double across = pipeline::DistanceAcrossLine(p.column, p.row, t.all);
+        if (across <= 1.0) continue;
+        ++over;
+        double nearest = 1e9;
+        for (double c : t.all.at(p.row))
+          if (std::abs(c - p.column) < std::abs(nearest - p.column)) nearest = c;
+        int end = 99;  // rows to the object's line end
+        for (int dr = 1; dr <= 12 && end == 99; ++dr)
+          if (object_by_row.count(p.row + dr) == 0 || object_by_row.count(p.row - dr) == 0) end = dr;
+        double slope = 0;  // the true line's move to the next and previous rows (px)
+        for (int dr : {-1, 1}) {
+          const auto n = t.all.find(p.row + dr);
+          if (n == t.all.end()) continue;
+          double m = 1e9;
+          for (double c : n->second) m = std::min(m, std::abs(c - nearest));
+          slope = std::max(slope, m);
+        }
+        bool jump = false;  // the object's truth jumps by over 20 px within 3 rows
+        for (int dr = -3; dr < 3 && !jump; ++dr) {
+          const auto n0 = object_by_row.find(p.row + dr), n1 = object_by_row.find(p.row + dr + 1);
+          jump = n0 != object_by_row.end() && n1 != object_by_row.end() &&
+                 std::abs(n1->second[0] - n0->second[0]) > 20.0;
+        }
+        int table = 99;  // rows to the table's line within 25 px
+        for (int dr = -6; dr <= 6; ++dr) {
+          const auto n = table_by_row.find(p.row + dr);
+          if (n == table_by_row.end()) continue;
+          for (double c : n->second)
+            if (std::abs(c - nearest) < 25) table = std::min(table, std::abs(dr));
+        }
+        // The noise-free render's centre of mass (0.15 of the peak) from its highest difference within 8 px.
+        const uint8_t* ca = clean_on.ptr<uint8_t>(p.row);
+        const uint8_t* cb = clean_off.ptr<uint8_t>(p.row);
+        std::vector<uint8_t> d(static_cast<size_t>(on.cols));
+        for (int i = 0; i < on.cols; ++i) d[i] = static_cast<uint8_t>(std::max(0, int{ca[i]} - int{cb[i]}));
+        int peak = std::clamp(static_cast<int>(nearest), 0, on.cols - 1);
+        for (int i = std::max(0, peak - 8); i <= std::min(on.cols - 1, peak + 8); ++i)
+          peak = d[i] > d[peak] ? i : peak;
+        const double clean_centre =
+            d[peak] > 0 ? EstimateCentre(Estimator::kCenterOfMass, d.data(), on.cols, peak, peak, d[peak])
+                        : -1.0;
+        const double clean_across =
+            clean_centre < 0 ? -1.0 : pipeline::DistanceAcrossLine(clean_centre, p.row, t.all);
+        const char* place = (p.flags & kFlagGlint)             ? "glint"
+                            : jump                             ? "past a depth edge"
+                            : table <= 6                       ? "at the table's line"
+                            : end <= 8 && slope > 6.0          ? "rim"
+                            : end <= 8 && slope > 2.0          ? "grazing apex"
+                            : end <= 4                         ? "line end"
+                            : (p.flags & kFlagAlbedoEdge) != 0 ? "divided"
+                            : clean_across > 0.5               ? "light shifted"
+                                                               : "rest";
+        ++by_place[place];
+        std::printf(
+            "  step %d laser %d row %d: %s; column %.2f, truth %.2f; across %.2f, own %.2f, without the "
+            "steep step "
+            "%.2f, noise-free centre %.2f (its peak %d DN); flags %d, peak %.0f, width %.1f; end %d rows, "
+            "slope "
+            "%.2f px/row, table %d rows\n",
+            step, k, p.row, place, p.column, nearest, across, across_in(raw_line, p.row),
+            across_in(unsteep_line, p.row), clean_across, int{d[peak]}, int{p.flags}, p.peak, p.width, end,
+            slope, table);
+        if (dump) {
+          DumpRow("noisy", on.ptr<uint8_t>(p.row), off.ptr<uint8_t>(p.row), on.cols, p.row, nearest,
+                  p.column);
+          DumpRow("noise-free", ca, cb, on.cols, p.row, nearest, clean_centre);
+        }
+      }
+    }
+  }
+  std::printf("%s f/%.1f, %d steps x 2 lasers: object rows %d, over 1 px across %d (%.3f %%); by place:", set,
+              f_number, steps, lit, over, 100.0 * over / std::max(1, lit));
+  for (const auto& [place, n] : by_place) std::printf(" %s %d;", place.c_str(), n);
+  std::printf("\n");
+  // The bench's own object rows and count (bench accuracy prints the same share).
+  EXPECT_EQ(static_cast<size_t>(lit), bench_lit);
+  EXPECT_EQ(static_cast<size_t>(over), bench_over);
+}
+
 }  // namespace
 }  // namespace rotoscan::laser
