@@ -1347,10 +1347,11 @@ TEST(ObjectRowsTest, GlossyLimbShadingIsNotDividedOut) {
 // change: the light itself, with the specular lobe); the rows to the object's line end, the true slope, the
 // table's line within 6 rows. Places, first match: glint (kFlagGlint); past a depth edge (the truth jumps by
 // over 20 px within 3 rows: the line's blurred tail past its occluded end); at the table's line (within 6
-// rows); a rim (within 8 rows of the line's end, the truth over 6 px per row: the side line's tail where the
-// truth is a flat top's faint line); a grazing apex (the same, 2-6 px per row: the sphere's top, where its
-// line begins); a line's end (within 4 rows); divided (kFlagAlbedoEdge); the light shifted (the noise-free
-// centre over 0.5 px off); else the rest (speckle). README.md, issue 15, has the figures.
+// rows); a rim (the truth over 6 px per row: the side line's tail where the truth is a flat top's faint
+// line); a grazing apex (within 8 rows of the line's end, 2-6 px per row: the sphere's top, where its line
+// begins); a line's end (within 4 rows); divided (kFlagAlbedoEdge); the light shifted (the noise-free
+// centre over 0.5 px off: the plain centre of mass, so on the textured set the albedo's pull is in it);
+// else the rest (speckle). README.md, issue 15, has the figures.
 TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
   const char* set = std::getenv("ROTOSCAN_BENCH_ROWS");
   if (set == nullptr || *set == '\0') GTEST_SKIP() << "opt-in: ROTOSCAN_BENCH_ROWS=glossy|textured";
@@ -1452,7 +1453,7 @@ TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
         const char* place = (p.flags & kFlagGlint)             ? "glint"
                             : jump                             ? "past a depth edge"
                             : table <= 6                       ? "at the table's line"
-                            : end <= 8 && slope > 6.0          ? "rim"
+                            : slope > 6.0                      ? "rim"
                             : end <= 8 && slope > 2.0          ? "grazing apex"
                             : end <= 4                         ? "line end"
                             : (p.flags & kFlagAlbedoEdge) != 0 ? "divided"
