@@ -1460,15 +1460,29 @@ TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
                             : clean_across > 0.5               ? "light shifted"
                                                                : "rest";
         ++by_place[place];
+        // The truth's own light: the difference summed over the true line's width in the row (its slope, at
+        // least 3 px), in units of the frame's noise over as many pixels (a flat top's faint line, 9 px per
+        // row, is spread along the row), noisy and noise-free.
+        const int half = std::max(1, static_cast<int>(std::lround(0.5 * slope)));
+        const int c0 = static_cast<int>(std::lround(nearest));
+        double box = 0, clean_box = 0;
+        int box_n = 0;
+        const uint8_t* a = on.ptr<uint8_t>(p.row);
+        const uint8_t* b = off.ptr<uint8_t>(p.row);
+        for (int i = std::max(0, c0 - half); i <= std::min(on.cols - 1, c0 + half); ++i, ++box_n) {
+          box += int{a[i]} - int{b[i]};
+          clean_box += int{ca[i]} - int{cb[i]};
+        }
+        const double box_sigma = std::max(0.1, double{line.stats.noise_dn}) * std::sqrt(std::max(1, box_n));
         std::printf(
             "  step %d laser %d row %d: %s; column %.2f, truth %.2f; across %.2f, own %.2f, without the "
-            "steep step "
-            "%.2f, noise-free centre %.2f (its peak %d DN); flags %d, peak %.0f, width %.1f; end %d rows, "
-            "slope "
-            "%.2f px/row, table %d rows\n",
+            "steep "
+            "step %.2f, noise-free centre %.2f (its peak %d DN); flags %d, peak %.0f, width %.1f; end %d "
+            "rows, "
+            "slope %.2f px/row, table %d rows; at the truth over %d px z %.1f (noise-free %.1f)\n",
             step, k, p.row, place, p.column, nearest, across, across_in(raw_line, p.row),
             across_in(unsteep_line, p.row), clean_across, int{d[peak]}, int{p.flags}, p.peak, p.width, end,
-            slope, table);
+            slope, table, box_n, box / box_sigma, clean_box / box_sigma);
         if (dump) {
           DumpRow("noisy", on.ptr<uint8_t>(p.row), off.ptr<uint8_t>(p.row), on.cols, p.row, nearest,
                   p.column);
