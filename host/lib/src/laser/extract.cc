@@ -205,6 +205,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -518,6 +519,10 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
                     &raw_columns_, stats.noise_on_lit ? o.smooth_steep_step_px : 0.0, o.smooth_curvature && stats.noise_on_lit);
     detail::LimitSmoothing(row_columns_, &points);
   }
+  // A stretch's fading tail past a rim, put on the flat top's faint line through the corner (ends.cc), after
+  // the smoothing: nothing moves its rows afterwards (the smoothing reads a 9 px per row line as jumps).
+  if (o.rim_rows && stats.noise_on_lit)
+    detail::RecentreRimRows(on, off, channel, stats.noise_dn, &line->points);
   // A stretch's faint continuation past its end (gaps.cc, ExtendLineEnds), after the smoothing (thirteenth
   // session): its lines pass through the stretch's smoothed points rather than their own noisy estimates, and
   // its rows, placed by a matched filter over the whole run, are not moved by the steep step, the line-end
