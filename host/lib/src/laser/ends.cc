@@ -338,4 +338,113 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
   return count;
 }
 
+// A rim (issue 15, fourteenth session, rfglossy4; extract_steps.h, kRimTailRatio, says why and with what
+// figures): a stretch's end whose last rows fade, the side line's tail that the vertical blur carries past
+// the rim, where the truth is a flat top's faint line running off at 2-12 columns per row from the corner.
+// That line is looked for by its light summed along it over the tail's rows and kRimBeyondRows more (the flat
+// top's line is as wide in a row as its slope), away from the tail's own light; where it reaches kRimMinZ
+// noise sigmas, the tail's rows go on it.
+int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
+                    std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& p = *line_points;
+  const int n = static_cast<int>(p.size());
+  const int step = on.channels();
+  const double sigma = std::max(kRimMinSigmaDn, noise_dn);
+  int count = 0;
+  int start = 0;
+  std::vector<float> peaks;
+  std::vector<int> sums, counts;
+  while (start < n) {
+    int end = start;  // inclusive
+    while (end + 1 < n && Joined(p, end, end + 1)) ++end;
+    const int len = end - start + 1;
+    // Each end: dir +1 from the top end down the stretch, -1 from the bottom end up.
+    for (const int dir : {1, -1}) {
+      if (len < kRimMinStretch) break;
+      const int first = dir == 1 ? start : end;  // the end point
+      // The interior's peak: the median of kRimInteriorPoints points from kRimInteriorFrom in.
+      peaks.clear();
+      for (int k = 0; k < kRimInteriorPoints; ++k)
+        peaks.push_back(p[static_cast<size_t>(first + dir * (kRimInteriorFrom + k))].peak);
+      std::nth_element(peaks.begin(), peaks.begin() + kRimInteriorPoints / 2, peaks.end());
+      const double interior = peaks[kRimInteriorPoints / 2];
+      // The tail: the points from the end whose peak is under kRimTailRatio of the interior's.
+      int tail = 0;
+      while (tail < kRimMaxTail && p[static_cast<size_t>(first + dir * tail)].peak < kRimTailRatio * interior)
+        ++tail;
+      if (tail == 0 || tail == kRimMaxTail) continue;
+      // The corner: the first point in at the interior's level, on a stretch that runs along the columns
+      // there (at most kRimMaxInteriorSlope columns per row over the kRimInteriorFrom points in from it).
+      const LinePoint& corner = p[static_cast<size_t>(first + dir * tail)];
+      const LinePoint& inner = p[static_cast<size_t>(first + dir * (tail + kRimInteriorFrom))];
+      if (std::abs(inner.column - corner.column) > kRimMaxInteriorSlope * std::abs(inner.row - corner.row))
+        continue;
+      // The rim between the corner's row and the first tail row; the tail's own light within its half width
+      // and kRimTailClearPx of its column left out.
+      const double c0 = corner.column, r0 = corner.row - dir * 0.5;
+      const double clear = 0.5 * std::max(4.0f, corner.width) + kRimTailClearPx;
+      // Per row, running sums of the difference and of the pixels counted, the tail's own columns left out:
+      // each line's sum is then two lookups a row.
+      int rows_used = 0;
+      const int reach = static_cast<int>(std::ceil(kRimMaxSlope * (tail + kRimBeyondRows + 1))) + 2;
+      const int span_lo = std::max(0, static_cast<int>(c0) - reach);
+      const int span_hi = std::min(on.cols - 1, static_cast<int>(c0) + reach);
+      const int width = span_hi - span_lo + 1;
+      sums.assign(static_cast<size_t>((tail + kRimBeyondRows) * (width + 1)), 0);
+      counts.assign(sums.size(), 0);
+      for (int j = 1; j <= tail + kRimBeyondRows; ++j) {
+        const int r = corner.row - dir * j;
+        if (r < 0 || r >= on.rows) break;
+        const uint8_t* pa = on.ptr<uint8_t>(r) + channel;
+        const uint8_t* pb = off.ptr<uint8_t>(r) + channel;
+        int* sum_row = sums.data() + static_cast<size_t>((j - 1) * (width + 1));
+        int* count_row = counts.data() + static_cast<size_t>((j - 1) * (width + 1));
+        for (int i = span_lo; i <= span_hi; ++i) {
+          const bool kept = !(std::abs(i - c0) < clear);
+          sum_row[i - span_lo + 1] =
+              sum_row[i - span_lo] + (kept ? int{pa[i * step]} - int{pb[i * step]} : 0);
+          count_row[i - span_lo + 1] = count_row[i - span_lo] + (kept ? 1 : 0);
+        }
+        rows_used = j;
+      }
+      double best_z = 0, best_s = 0;
+      for (double a = kRimMinSlope; a <= kRimMaxSlope; a += kRimSlopeStep) {
+        for (const int side : {-1, 1}) {
+          const double s = side * a;  // columns per row away from the rim
+          double sum = 0;
+          int pixels = 0;
+          for (int j = 1; j <= rows_used; ++j) {
+            const int r = corner.row - dir * j;
+            const double x = c0 + s * std::abs(r - r0);
+            const int lo = std::max(span_lo, static_cast<int>(std::floor(x - 0.5 * a)));
+            const int hi = std::min(span_hi, static_cast<int>(std::ceil(x + 0.5 * a)));
+            if (hi < lo) continue;
+            const int* sum_row = sums.data() + static_cast<size_t>((j - 1) * (width + 1));
+            const int* count_row = counts.data() + static_cast<size_t>((j - 1) * (width + 1));
+            sum += sum_row[hi - span_lo + 1] - sum_row[lo - span_lo];
+            pixels += count_row[hi - span_lo + 1] - count_row[lo - span_lo];
+          }
+          if (pixels < kRimMinPixels) continue;
+          const double z = sum / (sigma * std::sqrt(static_cast<double>(pixels)));
+          if (z > best_z) {
+            best_z = z;
+            best_s = s;
+          }
+        }
+      }
+      // The best line inside the range of slopes, not at its bounds (beyond them: another line, the table's).
+      if (best_z < kRimMinZ || std::abs(best_s) < kRimMinSlope + 0.5 * kRimSlopeStep ||
+          std::abs(best_s) > kRimMaxSlope - 0.5 * kRimSlopeStep)
+        continue;
+      for (int k = 0; k < tail; ++k) {
+        LinePoint& q = p[static_cast<size_t>(first + dir * k)];
+        q.column = static_cast<float>(c0 + best_s * std::abs(q.row - r0));
+        ++count;
+      }
+    }
+    start = end + 1;
+  }
+  return count;
+}
+
 }  // namespace rotoscan::laser::detail

@@ -90,7 +90,8 @@
 // gates, per row on 3 steps x 2 lasers: textured, the divided rows over 1 px 155 of 1,979 against 978
 // undivided (RMS within 2 px 0.58 against 1.23); glossy, 16 rows divided at a sphere's limb, where shading
 // passes the gates (the laser, coming from elsewhere, is not shaded like the ambient light): 4 over 1 px
-// against 1 (README.md's figures include it). The
+// against 1 (README.md's figures include it; since the fourteenth session a single gradual monotone ramp
+// is taken for shading on the webcam's frames, kShadingRampNum in extract_steps.h). The
 // 2 px blur is the webcam's; on frames blurred 1.2 px alone it over-blurs and the division removes only
 // about half the pull (RealFramesTest.AlbedoStepInsideTheLineIsDividedOut).
 //
@@ -204,6 +205,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -481,8 +483,8 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     double column;
     const size_t index = line->points.size();
     LinePoint& p = line->points.emplace_back();
-    if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, flags, &p, &terms[index],
-                              &column)) {
+    if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, flags,
+                              stats.noise_on_lit, &p, &terms[index], &column)) {
       line->points.pop_back();
       ++stats.bad_width;
       continue;
@@ -517,6 +519,10 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
                     &raw_columns_, stats.noise_on_lit ? o.smooth_steep_step_px : 0.0, o.smooth_curvature && stats.noise_on_lit);
     detail::LimitSmoothing(row_columns_, &points);
   }
+  // A stretch's fading tail past a rim, put on the flat top's faint line through the corner (ends.cc), after
+  // the smoothing: nothing moves its rows afterwards (the smoothing reads a 9 px per row line as jumps).
+  if (o.rim_rows && stats.noise_on_lit)
+    detail::RecentreRimRows(on, off, channel, stats.noise_dn, &line->points);
   // A stretch's faint continuation past its end (gaps.cc, ExtendLineEnds), after the smoothing (thirteenth
   // session): its lines pass through the stretch's smoothed points rather than their own noisy estimates, and
   // its rows, placed by a matched filter over the whole run, are not moved by the steep step, the line-end

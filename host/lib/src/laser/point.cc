@@ -178,7 +178,7 @@ void AlbedoBlurredRatio(const uint8_t* d, const uint8_t* b, int cols, int lo, in
   for (; i <= hi; ++i) ratio[i - lo] = AlbedoBlurredRatioAt(d, b, cols, i, floor_dn);
 }
 
-bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright) {
+bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright, bool shading_ramps) {
   if (last - first < 3) return false;
   const ByteRange range = MinMaxRange(b, first, last);  // kernels.h
   const int low = range.low, high = range.high;
@@ -191,6 +191,13 @@ bool AlbedoEdgeInside(const uint8_t* b, int first, int last, bool narrow_bright)
   for (int i = first; i + kAlbedoEdgeSpanPx <= last; ++i)
     steepest = std::max(steepest, std::abs(int{b[i + kAlbedoEdgeSpanPx]} - int{b[i]}));
   if (2 * steepest < high - low) return false;
+  // A single gradual ramp (kShadingRampNum, extract_steps.h): a limb's shading, where the webcam's frames
+  // showed the division pulling the centre to the dark side.
+  if (shading_ramps && kShadingRampDen * steepest < kShadingRampNum * (high - low)) {
+    int variation = 0;
+    for (int i = first + 1; i <= last; ++i) variation += std::abs(int{b[i]} - int{b[i - 1]});
+    if (kShadingMonotoneDen * variation < kShadingMonotoneNum * (high - low)) return false;
+  }
   // Both levels resolved: at least kAlbedoMinLevelPx pixels above and below the middle of the range. The
   // red channel does not resolve a narrower feature (4:2:0 chroma and demosaicing halve its resolution,
   // the optics blur it), so the division would only add the blurs' mismatch; and a small bright spot of
@@ -316,7 +323,8 @@ double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b,
 }
 
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
-                  const ExtractOptions& o, uint8_t flags, LinePoint* point, PointTerms* terms, double* column_out) {
+                  const ExtractOptions& o, uint8_t flags, bool noise_on_lit, LinePoint* point,
+                  PointTerms* terms, double* column_out) {
   double column;
   if (o.estimator == Estimator::kCenterOfMass) {  // EstimateCentre's, with the vector extent scans
     column = CenterOfMassOver(d, c.com_first, c.com_last, c.peak);
@@ -326,8 +334,9 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
   if (column < 0) return false;
   bool albedo_edge = false;
   if (o.estimator == Estimator::kCenterOfMass &&
-      AlbedoEdgeInside(b, std::max(0, c.com_first - kAlbedoMinLevelPx), std::min(cols - 1, c.com_last + kAlbedoMinLevelPx),
-                       c.peak >= kAlbedoNarrowMinPeakDn)) {
+      AlbedoEdgeInside(b, std::max(0, c.com_first - kAlbedoMinLevelPx),
+                       std::min(cols - 1, c.com_last + kAlbedoMinLevelPx), c.peak >= kAlbedoNarrowMinPeakDn,
+                       noise_on_lit)) {
     // The albedo changes inside the line (texture, a dark-and-white edge): the reflection is the laser's
     // profile times the albedo, which pulls the centre of mass towards the brighter side by up to a
     // quarter of the width. The centre of the profile divided by the albedo as the laser-off frame

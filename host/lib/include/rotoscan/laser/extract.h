@@ -142,6 +142,11 @@ struct ExtractOptions {
   // the corner, whose light the bright line's blur fills, put on the faint line's straight fit from further
   // in (ends.cc, RecentreJunctionRows; issue 15); only on frames whose noise was measured on lit pixels.
   bool junction_rows = true;
+  // A stretch's last rows that fade past a rim (the blurred tail of a side's line where the truth is a flat
+  // top's faint line, 2-12 columns per row), put on that line where its light summed along it over those
+  // rows shows it (ends.cc, RecentreRimRows; issue 15); only on frames whose noise was measured on lit
+  // pixels.
+  bool rim_rows = true;
   // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
   // stretch's curve with a matched filter over several rows, a threshold on their summed difference
   // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit
