@@ -205,7 +205,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdlib>
 #include <string>
 
 #include <opencv2/core.hpp>

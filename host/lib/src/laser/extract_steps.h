@@ -6,14 +6,14 @@
 //   FindCandidates   candidates.cc  step 3: the runs of such pixels, measured (peak, extents, width)
 //   ChooseCandidate  candidates.cc  step 4: plausibility, and the one candidate the row keeps
 //   MeasurePoint     point.cc       step 5 in the row: sub-pixel centre and flags
-//   ScorePoints      point.cc       step 5 after the rows: width, uncertainty (a steep line's larger),
-//   quality SmoothAlongLine  smooth.cc      (public) the along-line smoothing LimitSmoothing   smooth.cc the
-//   smoothing moves no point further than its uncertainty RecentreSteepLines steep.cc     a steep line's
-//   centre measured across the line, before the smoothing RecentreLineEnds ends.cc        a steep stretch's
-//   end rows (a cut profile) measured across the line RecentreJunctionRows ends.cc    the table line's rows
-//   past its corner with the object's, on its own line RecentreRimRows  ends.cc        a stretch's fading
-//   tail past a rim, on the flat top's faint line (after smoothing) FillLineGaps     gaps.cc        rows
-//   missing inside a stretch, found along its curve by a matched filter
+//   ScorePoints      point.cc       step 5 after the rows: width, uncertainty (a steep line's larger), quality
+//   SmoothAlongLine  smooth.cc      (public) the along-line smoothing
+//   LimitSmoothing   smooth.cc      the smoothing moves no point further than its uncertainty
+//   RecentreSteepLines steep.cc     a steep line's centre measured across the line, before the smoothing
+//   RecentreLineEnds ends.cc        a steep stretch's end rows (a cut profile) measured across the line
+//   RecentreJunctionRows ends.cc    the table line's rows past its corner with the object's, on its own line
+//   RecentreRimRows  ends.cc        a stretch's fading tail past a rim, on the flat top's faint line
+//   FillLineGaps     gaps.cc        rows missing inside a stretch, found along its curve by a matched filter
 //
 // The kernels these use, once per instruction set, are in kernels.h.
 #pragma once
