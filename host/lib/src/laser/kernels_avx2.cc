@@ -270,6 +270,24 @@ __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* t, cons
   return whole;
 }
 
+// Four pixels of a row from column c (`step` bytes a pixel) as 32-bit lanes, for the kernels below: read
+// whole where columns up to readable_last may be read (a gray row), else one by one; where only n < 4 of
+// them are the run's, the lanes from n on are 0 or, read whole, the row's next pixels (the callers mask
+// them off).
+__attribute__((target("avx2"), always_inline)) static inline __m128i FourPixels(const uint8_t* p, int c, int n,
+                                                                                int step, int readable_last) {
+  if (step == 1 && c + 3 <= readable_last) {
+    int32_t v;
+    __builtin_memcpy(&v, p + c, 4);
+    return _mm_cvtepu8_epi32(_mm_cvtsi32_si128(v));
+  }
+  const uint8_t* q = p + static_cast<ptrdiff_t>(c) * step;
+  if (n >= 4) return _mm_setr_epi32(q[0], q[step], q[2 * step], q[3 * step]);
+  alignas(16) int32_t v4[4] = {0, 0, 0, 0};
+  for (int j = 0; j < n; ++j) v4[j] = q[static_cast<ptrdiff_t>(j) * step];
+  return _mm_load_si128(reinterpret_cast<const __m128i*>(v4));
+}
+
 // AcrossRowSums (kernels_scalar.simd.hpp) over the columns [c, c_last], 4 at a time (the last block's lanes
 // past c_last masked off): each pixel's along, across, test and weight are the scalar loop's operations on
 // the same numbers (IEEE double, no fused multiply-add), and the weights of the pixels that pass are added
@@ -295,28 +313,8 @@ __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsI
   const __m128i headroom = _mm_set1_epi32(255 - threshold);
   double w_sum = *sum_w, wt_sum = *sum_wt;
   for (; c <= c_last; c += 4) {
-    __m128i a, b;
     const int n = c_last - c + 1;  // columns left: the lanes from n on are no pixel of the row's run
-    if (n < 4 && (step != 1 || c + 3 > readable_last)) {
-      alignas(16) int32_t a4[4] = {0, 0, 0, 0}, b4[4] = {0, 0, 0, 0};
-      for (int j = 0; j < n; ++j) {
-        a4[j] = pa[static_cast<ptrdiff_t>(c + j) * step];
-        b4[j] = pb[static_cast<ptrdiff_t>(c + j) * step];
-      }
-      a = _mm_load_si128(reinterpret_cast<const __m128i*>(a4));
-      b = _mm_load_si128(reinterpret_cast<const __m128i*>(b4));
-    } else if (step == 1) {
-      int32_t a4, b4;
-      __builtin_memcpy(&a4, pa + c, 4);
-      __builtin_memcpy(&b4, pb + c, 4);
-      a = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(a4));
-      b = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(b4));
-    } else {
-      const uint8_t* qa = pa + static_cast<ptrdiff_t>(c) * step;
-      const uint8_t* qb = pb + static_cast<ptrdiff_t>(c) * step;
-      a = _mm_setr_epi32(qa[0], qa[step], qa[2 * step], qa[3 * step]);
-      b = _mm_setr_epi32(qb[0], qb[step], qb[2 * step], qb[3 * step]);
-    }
+    const __m128i a = FourPixels(pa, c, n, step, readable_last), b = FourPixels(pb, c, n, step, readable_last);
     // LaserDifference: 255 where a saturates over b <= 255 - threshold, else max(a - b, 0).
     const __m128i saturated = _mm_andnot_si128(_mm_cmpgt_epi32(b, headroom), _mm_cmpeq_epi32(a, full));
     const __m128i d = _mm_blendv_epi8(_mm_max_epi32(_mm_sub_epi32(a, b), _mm_setzero_si128()), full, saturated);
@@ -414,22 +412,7 @@ __attribute__((target("avx2"))) bool GapWindowAvx2(const GapSpan* spans, size_t 
   const __m256d v_dr = _mm256_set1_pd(static_cast<double>(spans[j].dr)), v_cc = _mm256_set1_pd(spans[j].cc);
   for (int c = spans[j].c_first; c <= c_last; c += 4) {
     const int n = c_last - c + 1;  // columns left: lanes from n on are masked off
-    __m128i va, vb;
-    if (step == 1 && c + 3 <= readable_last) {
-      int32_t a4, b4;
-      __builtin_memcpy(&a4, a + c, 4);
-      __builtin_memcpy(&b4, b + c, 4);
-      va = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(a4));
-      vb = _mm_cvtepu8_epi32(_mm_cvtsi32_si128(b4));
-    } else {
-      alignas(16) int32_t a4[4] = {0, 0, 0, 0}, b4[4] = {0, 0, 0, 0};
-      for (int q = 0; q < std::min(n, 4); ++q) {
-        a4[q] = a[static_cast<ptrdiff_t>(c + q) * step];
-        b4[q] = b[static_cast<ptrdiff_t>(c + q) * step];
-      }
-      va = _mm_load_si128(reinterpret_cast<const __m128i*>(a4));
-      vb = _mm_load_si128(reinterpret_cast<const __m128i*>(b4));
-    }
+    const __m128i va = FourPixels(a, c, n, step, readable_last), vb = FourPixels(b, c, n, step, readable_last);
     const __m256d valid =
         n >= 4 ? _mm256_castsi256_pd(_mm256_set1_epi64x(-1))
                : _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_cmplt_epi32(lanes, _mm_set1_epi32(n))));
