@@ -345,7 +345,7 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
 // top's line is as wide in a row as its slope), away from the tail's own light; where it reaches kRimMinZ
 // noise sigmas, the tail's rows go on it.
 int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                    std::vector<LinePoint>* line_points) {
+                    std::vector<LinePoint>* line_points, std::vector<std::pair<int, int>>* at_bound) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
   const int step = on.channels();
@@ -434,11 +434,25 @@ int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double n
       }
       // The best line inside the range of slopes, not at its bounds (beyond them: another line, the table's).
       if (best_z < kRimMinZ || std::abs(best_s) < kRimMinSlope + 0.5 * kRimSlopeStep ||
-          std::abs(best_s) > kRimMaxSlope - 0.5 * kRimSlopeStep)
+          std::abs(best_s) > kRimMaxSlope - 0.5 * kRimSlopeStep) {
+        // At the steep bound: the box sums' slope is pulled up by the cap line's blurred far light (rfrim5);
+        // the end is handed to the matched filter (gaps.cc's tails), as the end point and the direction past
+        // it (extract_steps.h).
+        if (at_bound != nullptr && best_z >= kRimMinZ &&
+            std::abs(best_s) > kRimMaxSlope - 0.5 * kRimSlopeStep)
+          at_bound->emplace_back(first, -dir);
         continue;
+      }
       for (int k = 0; k < tail; ++k) {
         LinePoint& q = p[static_cast<size_t>(first + dir * k)];
-        q.column = static_cast<float>(c0 + best_s * std::abs(q.row - r0));
+        // The row may hold either line's light (a wrong move is off by the move), and the box places the line
+        // anywhere within its |s| columns (extract_steps.h): the uncertainty at least both.
+        const float c = static_cast<float>(c0 + best_s * std::abs(q.row - r0));
+        const float u = std::max({q.uncertainty_px, std::abs(c - q.column),
+                                  static_cast<float>(std::abs(best_s) / std::sqrt(3.0))});
+        q.quality *= (1.0f + q.uncertainty_px * q.uncertainty_px) / (1.0f + u * u);
+        q.uncertainty_px = u;
+        q.column = c;
         ++count;
       }
     }

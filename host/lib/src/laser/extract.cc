@@ -520,8 +520,15 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   }
   // A stretch's fading tail past a rim, put on the flat top's faint line through the corner (ends.cc), after
   // the smoothing: nothing moves its rows afterwards (the smoothing reads a 9 px per row line as jumps).
-  if (o.rim_rows && stats.noise_on_lit)
-    detail::RecentreRimRows(on, off, channel, stats.noise_dn, &line->points);
+  // Its ends at the slope's steep bound go to the end step's matched filter (gaps.cc, tails alone).
+  if (o.rim_rows && stats.noise_on_lit) {
+    std::vector<std::pair<int, int>> at_bound;
+    detail::RecentreRimRows(on, off, channel, stats.noise_dn, &line->points,
+                            o.rim_rows_at_bound ? &at_bound : nullptr);
+    if (!at_bound.empty())
+      detail::ExtendLineEnds(on, off, channel, stats.noise_dn, &line->points, detail::kEndMinZ,
+                             /*fill=*/false, /*tails=*/true, &at_bound);
+  }
   // A stretch's faint continuation past its end (gaps.cc, ExtendLineEnds), after the smoothing (thirteenth
   // session): its lines pass through the stretch's smoothed points rather than their own noisy estimates, and
   // its rows, placed by a matched filter over the whole run, are not moved by the steep step, the line-end

@@ -20,6 +20,7 @@
 
 #include <array>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core/mat.hpp>
@@ -492,6 +493,25 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
 // unchanged; RMS across +0.001-0.002 px (rows that were over 1 px now within it); per row, where a 9 px per
 // row line's error is 9 times that across, -0.08 to +0.07 points (the textured object's at f/4 1.198 -> 1.295
 // %).
+// At the steep bound (fifteenth session, rfrim6; ExtractOptions::rim_rows_at_bound): on textured f/2.4, 11 of
+// the 14 rim rows left over 1 px were at 3 ends whose best box sum lay at the 12 px per row bound with z over
+// kRimMinZ (the cap's blurred light past the top's last row, 30-60 px wide in a row, pulls the box sums'
+// slope up; rfrim5). Those ends (the end point, the direction past it: at_bound) go to ExtendLineEnds' tails
+// (gaps.cc), whose Gaussian matched filter also fits the offset and finds ~9 px per row there. bench accuracy
+// (8 steps, all lit rows, across / per row): textured f/2.4 0.754 -> 0.623 % / 2.886 -> 2.862 %; textured
+// f/4, glossy at both: identical; 12 steps (not used to choose): textured f/4 1.030 -> 1.014 %, the rest
+// identical; found and RMS unchanged. A moved row's uncertainty (rfrim6): at least the move and |s| /
+// sqrt(3), its quality lowered to match (as point.cc's WidenUncertainty). A moved row may hold the light of
+// either line: the step's wrong moves (the side line's real last rows, whose peak a dark cell halved, taken
+// for its tail) are off along the row by about the move (10-14 px on the quality test's renders); and on a
+// line of s columns per row the box sum places the line anywhere within its box, |s| columns wide (a
+// uniform's two standard deviations: |s| / sqrt(3), ~5 px at 9 px per row). Measured on
+// RenderedLineTest.WebcamQualityPredictsErrorAndFigures' renders at 8 steps (f/4, both sets; 71 moved rows,
+// the tails' included): beyond 1x / 2x their uncertainty 33 / 19 before, 15 / 1 with the move, 8 / 1 with |s|
+// / sqrt(3) too. With the fallback and without this, that test fails on textured (worst quality tenth
+// RMS 1.47 px against the second's 1.74: the tails' moved rows, their uncertainty the move, 6-45 px, fill the
+// worst tenth with 4-7 px errors and push this step's wrong moves, uncertainty 3.5 px, into the second); with
+// it 1.82 against 1.38 px.
 constexpr double kRimTailRatio = 0.5;
 constexpr int kRimInteriorFrom = 6;
 constexpr int kRimInteriorPoints = 6;
@@ -505,7 +525,7 @@ constexpr double kRimMinZ = 10.0;
 constexpr double kRimMinSigmaDn = 0.5;
 constexpr int kRimMinPixels = 8;
 int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                    std::vector<LinePoint>* points);
+                    std::vector<LinePoint>* points, std::vector<std::pair<int, int>>* at_bound = nullptr);
 
 // After ScorePoints, before RecentreSteepLines: rows missing inside a stretch of line, looked for along the
 // stretch's curve by a matched filter over several rows (gaps.cc); `noise_dn` the frame's noise sigma.
@@ -518,9 +538,13 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
 // smoothing): a stretch's faint continuation past its end, along a straight line from its end, where the
 // matched filter summed over the run of rows reaches min_z (kEndMinZ at the gap step's kGapMinZ). Returns how
 // many rows it filled. CountLineEnds: the ends it looks past.
+// With tails, an end's blur tail (the points past the anchor) is put on the line found past it where that
+// line passes the tails' tests (gaps.cc); only_ends, when given, the (end point, direction) pairs looked
+// past.
 constexpr double kEndMinZ = 8.0;
 int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                   std::vector<LinePoint>* points, double min_z = kEndMinZ);
+                   std::vector<LinePoint>* points, double min_z = kEndMinZ, bool fill = true,
+                   bool tails = false, const std::vector<std::pair<int, int>>* only_ends = nullptr);
 int CountLineEnds(const std::vector<LinePoint>& points, int rows);
 
 }  // namespace rotoscan::laser::detail

@@ -244,6 +244,28 @@ struct Curve {
 // 1.748 / 1.784 / 1.796 % (it drops good rows about as often as bad ones). The rows over 1 px that are left
 // are runs whose slope is off by 1-3 px per row (most through an anchor of 30-80 DN, against 110-190 for the
 // good runs, at the object's top corner).
+//
+// Tails (rfcap, fourteenth session; since the fifteenth only for the rim step's ends at its steep slope
+// bound, ExtractOptions::rim_rows_at_bound: ExtendLineEnds with fill false, tails true and only_ends, after
+// RecentreRimRows; extract_steps.h has its figures). The textured object's cylinder top rim: the side line's
+// vertical blur carries it 2-4 rows past its true end (peaks 22 / 48 / 93 / 148 DN against ~200 below),
+// where the truth is the cap's ~4 DN line at ~9 px per row. An end's tail (its points past the anchor, under
+// kEndAnchorPeak of the stretch's median peak) is put on the line that the search above finds going on from
+// the anchor (their uncertainty at least the move: the row may hold either line's light). Only where (1) the
+// tail is the blur's, not a dim line going on: no point more than kTailRows rows past the anchor at
+// kTailNoiseZ noise or above (12 sigma, twice the detection threshold: noise picks and the blur's last light
+// are under it; the right laser's dim top on the textured cylinder, 30-40 DN for 6 rows, is not); (2) the
+// line leaves the end by at least a half width (end.half) a row, so that the tail rows' own profiles are not
+// the continuing line's too (the object's foot, where the table's line goes on at +-2.2 px per row: its tails
+// moved there were worse in 3 of 4 rows); (3) its z reaches kTailMinZ (12: the lines under it were the
+// glossy object's slow fades, z 9.8 and 11.5, whose 4 moved rows were none better and 2 worse, and the
+// textured right laser's dim tops, slopes 7.2-7.5 against a true 9.3). Tails alone search one anchor (the
+// end step's three cost ~110-150 us a typical frame against ~40-80 with one, on every end; here only the
+// rim step's ends at the bound: 3 in the textured f/2.4 bench's 16 frames) and slopes from the half width up
+// (test 2). Strays (kTailStrays): 1-2 noise picks past the end, not joined to it, do not stop it. rfcap
+// measured it as a step of its own on every end (main f01a26c, before the rim step; bench accuracy 8 steps,
+// across): textured f/4 0.862 -> 0.694 %, f/2.4 1.114 -> 0.682 %, glossy identical; on every end after the
+// rim step (its trial merge): textured f/4 0.635 -> 0.647 %, f/2.4 0.754 -> 0.587 %, +40-60 us a frame.
 constexpr int kEndMaxRows = 24;
 constexpr int kEndMinRows = 4;
 constexpr int kEndStretchRows = 16;
@@ -257,6 +279,16 @@ constexpr double kEndAcrossSd = 1.0;
 constexpr int kEndRefineSteps = 2;
 constexpr double kEndBinPx = 0.2;
 constexpr double kEndRowZ = 2.0;
+// Tails (above): a point more than kTailRows rows past the anchor at kTailNoiseZ noise or more is a line
+// going on; the line's z at least kTailMinZ.
+constexpr int kTailRows = 3;
+// Tails alone: at most kTailStrays points under kTailNoiseZ noise within kTailStrayRows rows past an end are
+// strays (noise picks on the faint line past the corner: 1-2 of 12-15 DN): the rows past the end go through
+// them and they are placed with the tail.
+constexpr int kTailStrays = 2;
+constexpr int kTailStrayRows = 6;
+constexpr double kTailNoiseZ = 12.0;
+constexpr double kTailMinZ = 12.0;
 // A Gaussian's full width at half maximum over its sigma: the matched filter's sigma from the line's width.
 constexpr double kFwhmPerSigma = 2.3548;
 
@@ -289,6 +321,7 @@ struct End {
   int anchor = 0;  // the outermost point with kEndAnchorPeak of the stretch's median peak
   int end_row = 0, limit_row = 0;
   double half = 0;  // the line's half width across (the matched filter's)
+  int strays = 0;   // stray points past the end that the rows past it go through
 };
 
 bool Joined(const std::vector<LinePoint>& p, int a, int b) {
@@ -298,7 +331,7 @@ bool Joined(const std::vector<LinePoint>& p, int a, int b) {
 }
 
 bool EndAt(const std::vector<LinePoint>& p, int e, int dir, int rows, std::vector<float>* peaks,
-           std::vector<float>* widths, End* out) {
+           std::vector<float>* widths, End* out, double stray_peak = 0) {
   const int n = static_cast<int>(p.size());
   if (dir < 0 ? (e > 0 && Joined(p, e - 1, e)) : (e + 1 < n && Joined(p, e, e + 1))) return false;
   peaks->clear();
@@ -319,8 +352,15 @@ bool EndAt(const std::vector<LinePoint>& p, int e, int dir, int rows, std::vecto
   // The rows past the end that may be filled: up to the next point or kEndMaxRows.
   const int end_row = p[static_cast<size_t>(e)].row;
   int limit_row = end_row + dir * kEndMaxRows;
-  if (dir < 0 && e > 0) limit_row = std::max(limit_row, p[static_cast<size_t>(e - 1)].row + 1);
-  if (dir > 0 && e + 1 < n) limit_row = std::min(limit_row, p[static_cast<size_t>(e + 1)].row - 1);
+  // Stray points past the end (tails: at most kTailStrays, under stray_peak, within kTailStrayRows of it) do
+  // not stop the rows past it.
+  int next = e + dir, strays = 0;
+  while (next >= 0 && next < n && strays < kTailStrays && p[static_cast<size_t>(next)].peak < stray_peak &&
+         std::abs(p[static_cast<size_t>(next)].row - p[static_cast<size_t>(e)].row) <= kTailStrayRows)
+    next += dir, ++strays;
+  if (dir < 0 && next >= 0) limit_row = std::max(limit_row, p[static_cast<size_t>(next)].row + 1);
+  if (dir > 0 && next < n) limit_row = std::min(limit_row, p[static_cast<size_t>(next)].row - 1);
+  out->strays = strays;
   limit_row = std::clamp(limit_row, 0, rows - 1);
   if (dir * (limit_row - end_row) < kEndMinRows) return false;
   std::vector<float>& sorted = *peaks;
@@ -351,10 +391,12 @@ int CountLineEnds(const std::vector<LinePoint>& points, int rows) {
 }
 
 int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                   std::vector<LinePoint>* line_points, double min_z) {
+                   std::vector<LinePoint>* line_points, double min_z, bool fill, bool tails,
+                   const std::vector<std::pair<int, int>>* only_ends) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
   if (n < kEndMinPoints || noise_dn <= 0) return 0;
+  std::vector<std::pair<int, float>> tail_moves;
   const int rows = on.rows, cols = on.cols, step = on.channels();
   std::vector<LinePoint> filled;
   RowPrefix prefix;
@@ -365,15 +407,33 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
   End end;
   for (int e = 0; e < n; ++e) {
     for (int dir : {-1, 1}) {
-      if (!EndAt(p, e, dir, rows, &peaks, &widths, &end)) continue;
+      // Tails alone: up to kTailStrays stray points past the end (noise picks over the faint line) do not
+      // stop it. Only the ends asked for (the rim step's, ends.cc): an end at most kTailStrayRows rows past
+      // one (its strays).
+      if (only_ends != nullptr &&
+          std::none_of(only_ends->begin(), only_ends->end(), [&](const std::pair<int, int>& o) {
+            return o.second == dir && (e - o.first) * dir >= 0 &&
+                   std::abs(p[static_cast<size_t>(e)].row - p[static_cast<size_t>(o.first)].row) <=
+                       kTailStrayRows;
+          }))
+        continue;
+      if (!EndAt(p, e, dir, rows, &peaks, &widths, &end, fill ? 0.0 : kTailNoiseZ * noise_dn)) continue;
       const int last = end.last, anchor = end.anchor, end_row = end.end_row, limit_row = end.limit_row;
+      // A blur tail: points past an anchor of kTailNoiseZ noise or more (a bright line's blur; on a faint
+      // line, the table's, the search is not made), those more than kTailRows rows past it all under
+      // kTailNoiseZ noise.
+      bool tail_ok = tails && anchor != e && p[static_cast<size_t>(anchor)].peak >= kTailNoiseZ * noise_dn;
+      for (int k = anchor + dir; tail_ok && k != e + dir; k += dir)
+        tail_ok = !(dir * (p[static_cast<size_t>(k)].row - p[static_cast<size_t>(anchor)].row) > kTailRows &&
+                    p[static_cast<size_t>(k)].peak >= kTailNoiseZ * noise_dn);
+      if (!fill && !tail_ok) continue;
       const double half = end.half;
       const double d0 = 2.0 * half + 1.0;  // along from the anchor: the stretch's own light left out
       // Anchors: the chosen point and its neighbours in the stretch.
       int anchors[3] = {0, 0, 0};
       int anchor_count = 0;
       for (int a : {anchor, anchor - dir, anchor + dir}) {
-        if (anchor_count == kEndAnchors) break;
+        if (anchor_count == (fill ? kEndAnchors : 1)) break;
         if (a < 0 || a >= n) continue;
         const int ra = p[static_cast<size_t>(a)].row;
         if (dir * (ra - end_row) > 0 || std::abs(ra - end_row) > kEndStretchRows) continue;
@@ -462,7 +522,9 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
           visit(j, sum, count);
         }
       };
-      const double theta_lo = std::atan(kEndMinSlope), theta_hi = std::atan(kEndMaxSlope);
+      // Tails alone: only lines that leave the end by at least a half width a row (the tails' test below).
+      const double theta_lo = std::atan(fill ? kEndMinSlope : std::max(kEndMinSlope, half)),
+                   theta_hi = std::atan(kEndMaxSlope);
       for (int i = 0; i < anchor_count; ++i) {
         const int a = anchors[i];
         const int ra = p[static_cast<size_t>(a)].row;
@@ -578,6 +640,14 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
       const double ca = best_ca + best_offset * std::sqrt(1.0 + best_s * best_s);
       const double length = std::sqrt(1.0 + best.slope * best.slope);
       const double uncertainty = std::max(kGapMinUncertaintyPx, 2.0 * length * kEndAcrossSd);
+      if (tail_ok && best.z >= kTailMinZ && std::abs(best.slope) >= half) {
+        for (int k = anchor + dir; k != e + dir * (1 + end.strays); k += dir) {
+          const int rr = p[static_cast<size_t>(k)].row;
+          if (dir * (rr - ra) <= 0) continue;
+          tail_moves.emplace_back(k, static_cast<float>(ca + best.slope * (rr - ra)));
+        }
+      }
+      if (!fill) continue;
       for (int j = first_fill; j <= best.rows; ++j) {
         const int rr = ra + dir * j;
         const double c = ca + best.slope * (rr - ra);
@@ -619,6 +689,15 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
         q.flags = 0;
       }
     }
+  }
+  // A tail's row may hold the light of either line: its uncertainty at least the move, its quality to match
+  // (as point.cc's WidenUncertainty).
+  for (const auto& [k, c] : tail_moves) {
+    LinePoint& q = p[static_cast<size_t>(k)];
+    const float u = std::max(q.uncertainty_px, std::abs(c - q.column));
+    q.quality *= (1.0f + q.uncertainty_px * q.uncertainty_px) / (1.0f + u * u);
+    q.uncertainty_px = u;
+    q.column = c;
   }
   if (filled.empty()) return 0;
   std::sort(filled.begin(), filled.end(), [](const LinePoint& a, const LinePoint& b) { return a.row < b.row; });

@@ -147,6 +147,10 @@ struct ExtractOptions {
   // rows shows it (ends.cc, RecentreRimRows; issue 15); only on frames whose noise was measured on lit
   // pixels.
   bool rim_rows = true;
+  // With rim_rows: the ends where that line's best slope is at the search's steep bound (the cap's blurred
+  // light pulls it there) handed to the end step's matched filter, which also fits the line's offset
+  // (gaps.cc, ExtendLineEnds' tails; extract_steps.h has the figures).
+  bool rim_rows_at_bound = true;
   // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
   // stretch's curve with a matched filter over several rows, a threshold on their summed difference
   // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit
