@@ -229,7 +229,11 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
 // row from the interior's (two lines meeting at a corner, not one line's highlight), the rows past the
 // lines' crossing within kJunctionReachRows rows are put on the interior's fit, where that moves them at
 // most kJunctionMaxMovePx (further, the point is on another line: the object's, whose row it may be). A
-// row several bright points reach takes the nearest one's (its side's fit holds the corner's rows).
+// row several bright points reach takes the nearest one's (its side's fit holds the corner's rows). A row
+// between b and the interior whose peak is at most kJunctionFaintRatio times the interior's mean is the faint
+// line's whichever side of the straight lines' crossing it lies (a sphere's line curves into the corner, so
+// the crossing falls past it), and goes on the fit if that moves it at most kJunctionFaintMaxMovePx (fifteenth
+// session; extract_steps.h has the figures).
 int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
@@ -317,14 +321,21 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
       const double cb = (bc - sb * br) / bm;  // the bright side's column at b's row
       // a0 + s (r - base) = cb + sb (r - b.row)
       const double corner_row = (cb - sb * pb.row - a0 + s * base) / (s - sb);
+      // The interior's mean peak: a row between b and the interior no brighter than kJunctionFaintRatio times
+      // it is the faint line's, whichever side of the straight lines' crossing it is on (extract_steps.h).
+      double interior_peak = 0;
+      for (int k = lo; k <= hi; ++k) interior_peak += p[static_cast<size_t>(k)].peak;
+      interior_peak /= m;
       for (int k = b + dir; k != lo; k += dir) {
         LinePoint& q = p[static_cast<size_t>(k)];
         const double past = (q.row - corner_row) * dir;
-        if (past > kJunctionReachRows) break;
-        if (past <= 0) continue;  // the bright line's side of the corner
+        const bool faint_row = q.peak <= kJunctionFaintRatio * interior_peak;
+        if (past > kJunctionReachRows && !faint_row) break;
+        if (past <= 0 && !faint_row) continue;  // the bright line's side of the corner
         const double target = a0 + s * (q.row - base);
         const int d = std::abs(q.row - pb.row);
-        if (std::abs(target - q.column) > kJunctionMaxMovePx || d >= from_rows[static_cast<size_t>(k)]) continue;
+        const double max_move = faint_row ? kJunctionFaintMaxMovePx : kJunctionMaxMovePx;
+        if (std::abs(target - q.column) > max_move || d >= from_rows[static_cast<size_t>(k)]) continue;
         moved[static_cast<size_t>(k)] = static_cast<float>(target);
         from_rows[static_cast<size_t>(k)] = d;
       }

@@ -466,6 +466,23 @@ constexpr int kJunctionSideRows = 6;
 constexpr double kJunctionMinTurn = 1.0;
 constexpr int kJunctionReachRows = 5;
 constexpr double kJunctionMaxMovePx = 8.0;
+// The faint rows at the corner (fifteenth session, rfglossy5): where the object's line fades at a sphere's
+// limb it curves into the corner, so its straight side fit crosses the table's line 1-5 rows past the true
+// corner, and the table's first rows there were left where the row pass put them: on the object's faded tail
+// or a noise grain 10-27 px off (`BenchObjectRowsByPlace` with ROTOSCAN_BENCH_PART=table: 22 of the glossy
+// table's 36 rows over 1 px at f/4 were within 6 rows of the object's line). A row between b and the interior
+// whose peak is at most kJunctionFaintRatio times the interior's mean peak is the faint line's on either side
+// of the crossing, and goes on the interior's fit if that moves it at most kJunctionFaintMaxMovePx. `bench
+// accuracy`, 8 steps x 2 lasers, over 1 px across, glossy / textured: f/4 1.362 / 0.635 -> 1.115 / 0.611 %,
+// f/2.4 1.022 / 0.754 -> 0.852 / 0.718 % (ratio 1.3: 1.161 / 0.623, 0.882 / 0.730; 2: 1.146 / 0.551, 0.867 /
+// 0.647, but the glossy object 52 -> 55 rows over 1 px at f/4; 2.5: 1.177 / 0.575; a move of at most 12 px:
+// 1.208 / 0.635, 0.929 / 0.718; 50 px: as 30). The glossy object's rows over 1 px 52 -> 53 at f/4 (its
+// faded last row, peak 14, moved onto the table's line extended), textured's and f/2.4's unchanged. Turns not
+// used to choose it (6, 7, 12 steps, both apertures): over 1 px across lower in all 12 set-and-aperture pairs
+// (glossy f/4 2.028 / 1.240 / 1.960 -> 1.987 / 0.992 / 1.882 %); over 1 px per row higher in 3 of them (glossy
+// f/4 6 steps 5.070 -> 5.151 %, 7 steps 4.628 -> 4.744 %; textured f/2.4 6 steps 2.538 -> 2.570 %).
+constexpr double kJunctionFaintRatio = 1.6;
+constexpr double kJunctionFaintMaxMovePx = 30.0;
 int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
 
 // After the smoothing: a stretch's fading tail past a rim put on the flat top's faint line through the
