@@ -814,15 +814,15 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       const double window = std::max(kSteepMinHalfPx, width_across);
       const double col_reach = (reach_across + kGapAlongPx) * length + 1.0;
       const double reach_px = std::min(col_reach, std::max(reach_across, half + window) * length + 1.0);
-      // visit_row(rr, near_only, visit) calls visit(column, along_x, y, difference_at) for each pixel of the
-      // window's row rr: its along from the row's point is along_x(c) / L, its across y(c) / L (the column
-      // less the curve's column in row rr), its signed difference difference_at(c). The row's own pixels are
-      // summed first (a cheap rejection: the row must hold light of the line, below), then the window's.
-      // The sums are of integers (exact in any order); the pixels within kGapAlongPx along whose weight is
-      // positive and that lie within the centre of mass's reach are kept, in the visiting order, for the
-      // centre of mass (its floating-point sums as another visit of the window would give them).
+      // span_of(rr, near_only) gives the window's row rr: its pixels' pointers, the curve's column cc in it,
+      // and the columns c_first..c_last to visit. A pixel's along from the row's point is
+      // ((c - c0) s + rr - r) / L, its across (c - cc) / L. The row's own pixels are summed first (a cheap
+      // rejection: the row must hold light of the line, below), then the window's. The sums are of integers
+      // (exact in any order); the pixels within kGapAlongPx along whose weight is positive and that lie
+      // within the centre of mass's reach are kept, in the visiting order, for the centre of mass (its
+      // floating-point sums as another visit of the window would give them).
       // Bit-identical to visiting the whole window each time (laser_digest --check against a build before
-      // issue 15's speed-ups).
+      // issue 15's speed-ups; and against main 8acc4fb after this function's rewrite, fifteenth session).
       // Fourteenth session: the tests of along and across against kGapAlongPx and the boxes' edges on their
       // numerators (kTestMargin), a division only near an edge and for the kept pixels' across (two
       // divisions a pixel, ~17,000 pixels a typical frame); the rows' bounds rounded inline (FloorOf).
@@ -838,37 +838,35 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
                    edge2_out = (kGapSideShift + 1.0) * half * length * (1.0 + kTestMargin);
       const double com_out = (half + window) * length * (1.0 + kTestMargin);
       const double inv_s = 1.0 / s;
-      // near_only: a row none of whose pixels lies within kGapAlongPx along is skipped (along is monotonic
-      // in the column, so its two ends tell).
-      auto visit_row = [&](int rr, bool near_only, auto&& visit, auto&& whole_row) {
+      // near_only: only the columns that may lie within kGapAlongPx along; a row with none is empty
+      // (c_last < c_first). Along is monotonic in the column, so the row's two ends tell.
+      auto span_of = [&](int rr, bool near_only) {
         const double cc = curve.ColumnAt(rr);
-        int c_first = ClampToIndex(FloorOf(cc - reach_px), cols);
-        int c_last = ClampToIndex(CeilOf(cc + reach_px), cols);
-        auto along_x = [&](int c) { return (c - c0) * s + (rr - r); };
-        if (near_only) {
-          // Skipped only where both ends lie beyond kGapAlongPx on one side for certain (else each pixel's
-          // own test decides: visiting more pixels than needed changes nothing).
-          const double x0 = along_x(c_first), x1 = along_x(c_last);
-          if ((x0 > along_out && x1 > along_out) || (x0 < -along_out && x1 < -along_out)) return;
-          // On a sloped line only a band of the row's columns lies within kGapAlongPx along: those between
-          // the columns where along is -kGapAlongPx and kGapAlongPx, a pixel more either side (at a slope
-          // of at least kGapBandMinSlope a column moves along by ~0.05 px or more, far above rounding, and
-          // above the rounding of 1 / s).
-          if (std::abs(s) >= kGapBandMinSlope) {
-            const double e0 = c0 + (-kGapAlongPx * length - (rr - r)) * inv_s;
-            const double e1 = c0 + (kGapAlongPx * length - (rr - r)) * inv_s;
-            if (std::isfinite(e0) && std::isfinite(e1)) {
-              c_first = std::max(c_first, ClampToIndex(FloorOf(std::min(e0, e1)) - 1.0, cols));
-              c_last = std::min(c_last, ClampToIndex(CeilOf(std::max(e0, e1)) + 1.0, cols));
-            }
+        const int c_first = ClampToIndex(FloorOf(cc - reach_px), cols);
+        const int c_last = ClampToIndex(CeilOf(cc + reach_px), cols);
+        GapSpan span{
+            on.ptr<uint8_t>(rr) + channel, off.ptr<uint8_t>(rr) + channel, cc, rr - r, c_first, c_last};
+        if (!near_only) return span;
+        // Empty only where both ends lie beyond kGapAlongPx on one side for certain (else each pixel's own
+        // test decides: visiting more pixels than needed changes nothing).
+        const double x0 = (span.c_first - c0) * s + (rr - r), x1 = (span.c_last - c0) * s + (rr - r);
+        if ((x0 > along_out && x1 > along_out) || (x0 < -along_out && x1 < -along_out)) {
+          span.c_last = span.c_first - 1;
+          return span;
+        }
+        // On a sloped line only a band of the row's columns lies within kGapAlongPx along: those between
+        // the columns where along is -kGapAlongPx and kGapAlongPx, a pixel more either side (at a slope
+        // of at least kGapBandMinSlope a column moves along by ~0.05 px or more, far above rounding, and
+        // above the rounding of 1 / s).
+        if (std::abs(s) >= kGapBandMinSlope) {
+          const double e0 = c0 + (-kGapAlongPx * length - (rr - r)) * inv_s;
+          const double e1 = c0 + (kGapAlongPx * length - (rr - r)) * inv_s;
+          if (std::isfinite(e0) && std::isfinite(e1)) {
+            span.c_first = std::max(span.c_first, ClampToIndex(FloorOf(std::min(e0, e1)) - 1.0, cols));
+            span.c_last = std::min(span.c_last, ClampToIndex(CeilOf(std::max(e0, e1)) + 1.0, cols));
           }
         }
-        const uint8_t* a = on.ptr<uint8_t>(rr) + channel;
-        const uint8_t* b = off.ptr<uint8_t>(rr) + channel;
-        if (whole_row(a, b, cc, c_first, c_last)) return;
-        auto y_at = [&](int c) { return c - cc; };
-        auto difference_at = [&](int c) { return SignedDifference(a[c * step], b[c * step]); };
-        for (int c = c_first; c <= c_last; ++c) visit(c, along_x, y_at, difference_at);
+        return span;
       };
       auto box_of = [&](double across) {
         return std::abs(across) <= half                          ? 0
@@ -898,12 +896,13 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       // The row's own pixels of the three boxes, at any distance along (a steep line's sides lie far along).
       double own[3] = {0, 0, 0};
       int own_count[3] = {0, 0, 0};
-      visit_row(r, false, [&](int c, auto&&, auto&& y_at, auto&& difference_at) {
-        const int box = box_at(y_at(c));
-        if (box < 0) return;
-        own[box] += difference_at(c);
+      const GapSpan own_row = span_of(r, false);
+      for (int c = own_row.c_first; c <= own_row.c_last; ++c) {
+        const int box = box_at(c - own_row.cc);
+        if (box < 0) continue;
+        own[box] += SignedDifference(own_row.a[c * step], own_row.b[c * step]);
         ++own_count[box];
-      }, [](const uint8_t*, const uint8_t*, double, int, int) { return false; });
+      }
       if (z_of(own[0], own[1], own[2], own_count[0], own_count[1], own_count[2]) < kGapHalfZ) continue;
       // The matched filter: the box on the curve, and the boxes kGapSideShift half widths to either side;
       // each split into the halves before and after the row's point along the line.
@@ -921,14 +920,10 @@ int FillLineGaps(const cv::Mat& on, const cv::Mat& off, int channel, double nois
       spans.clear();
       size_t span_pixels = 0;
       for (int rr = r_first; rr <= r_last; ++rr) {
-        visit_row(rr, true, [](int, auto&&, auto&&, auto&&) {},
-                  [&](const uint8_t* a, const uint8_t* b, double cc, int c_first, int c_last) {
-                    if (c_last >= c_first) {
-                      spans.push_back({a, b, cc, rr - r, c_first, c_last});
-                      span_pixels += static_cast<size_t>(c_last - c_first + 1) + 4;
-                    }
-                    return true;
-                  });
+        const GapSpan span = span_of(rr, true);
+        if (span.c_last < span.c_first) continue;
+        spans.push_back(span);
+        span_pixels += static_cast<size_t>(span.c_last - span.c_first + 1) + 4;
       }
       if (near.size() < span_pixels) near.resize(span_pixels);
       bool done = false;
