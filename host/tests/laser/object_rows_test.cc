@@ -1748,5 +1748,51 @@ TEST(ObjectRowsTest, RimRowsGoOnTheFlatTopsLine) {
   }
 }
 
+
+// The rim step's tail judged by each row's albedo (fifteenth session, rfrim7; extract_steps.h,
+// kRimAlbedoHalfPx): on the textured set, ends whose last real rows lie on a dark checker cell (peak under
+// half the interior's, which is on a brighter cell) were taken for the tail and moved 1-2 px off the side
+// line. The bench's own frames (bench accuracy's seeds), 8 steps, both apertures: the object's rows over 1 px
+// across with the albedo test and without it (ExtractOptions::rim_rows_albedo).
+TEST(ObjectRowsTest, RimTailsJudgedByTheirAlbedo) {
+  const int steps = EnvInt("ROTOSCAN_OBJECT_ROWS_STEPS", 8);
+  int over_sum[2] = {0, 0};  // [without, with]
+  for (double f_number : {4.0, 2.4}) {
+    auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/textured-webcam.json"));
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    for (sim::LaserModel& laser : scene->laser) laser.f_number = f_number;
+    auto renderer = sim::Renderer::Create(*scene);
+    ASSERT_TRUE(renderer.ok());
+    ExtractOptions without;
+    without.rim_rows_albedo = false;
+    LineExtractor extractors[2] = {LineExtractor{without}, LineExtractor{ExtractOptions()}};
+    int rows[2] = {0, 0}, over[2] = {0, 0};
+    for (int step = 0; step < steps; ++step) {
+      const double angle = step * 2.0 * 3.14159265358979323846 / steps;
+      const sim::RenderedStep frames = (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, -1, step, 0));
+      for (int k = 0; k < 2; ++k) {
+        const testing::TruthByRow t =
+            testing::TruthRows((*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle));
+        for (int v = 0; v < 2; ++v) {
+          Line line;
+          ASSERT_TRUE(extractors[v].Extract(frames.frames[k], frames.frames[2], &line).ok());
+          for (const LinePoint& p : line.points) {
+            const auto o = t.object.find(p.row);
+            if (o == t.object.end() || !o->second) continue;
+            ++rows[v];
+            over[v] += pipeline::DistanceAcrossLine(p.column, p.row, t.all) > 1.0;
+          }
+        }
+      }
+    }
+    std::printf("textured f/%.1f, %d steps x 2 lasers: the object's rows %d, over 1 px across %d with the "
+                "albedo test, %d without\n", f_number, steps, rows[1], over[1], over[0]);
+    EXPECT_EQ(rows[0], rows[1]) << "f/" << f_number;  // the test moves rows, it adds none
+    EXPECT_LE(over[1], over[0]) << "f/" << f_number;  // no aperture worse
+    for (int v = 0; v < 2; ++v) over_sum[v] += over[v];
+  }
+  EXPECT_LT(over_sum[1], over_sum[0]);  // the dark cells' ends (f/4 at 8 steps)
+}
+
 }  // namespace
 }  // namespace rotoscan::laser

@@ -356,7 +356,8 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
 // top's line is as wide in a row as its slope), away from the tail's own light; where it reaches kRimMinZ
 // noise sigmas, the tail's rows go on it.
 int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                    std::vector<LinePoint>* line_points, std::vector<std::pair<int, int>>* at_bound) {
+                    std::vector<LinePoint>* line_points, std::vector<std::pair<int, int>>* at_bound,
+                    bool by_albedo) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
   const int step = on.channels();
@@ -384,6 +385,34 @@ int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double n
       while (tail < kRimMaxTail && p[static_cast<size_t>(first + dir * tail)].peak < kRimTailRatio * interior)
         ++tail;
       if (tail == 0 || tail == kRimMaxTail) continue;
+      // Each row judged against its own albedo's level too (extract_steps.h, kRimAlbedoHalfPx): a dark cell's
+      // real rows are not the tail.
+      if (by_albedo) {
+        auto albedo = [&](const LinePoint& q) {
+          const int c = static_cast<int>(std::lround(q.column));
+          const uint8_t* po = off.ptr<uint8_t>(q.row) + channel;
+          int sum = 0, pixels = 0;
+          for (int i = std::max(0, c - kRimAlbedoHalfPx); i <= std::min(off.cols - 1, c + kRimAlbedoHalfPx); ++i)
+            sum += po[i * step], ++pixels;
+          return std::max(kRimAlbedoFloorSigmas * sigma, static_cast<double>(sum) / std::max(1, pixels));
+        };
+        peaks.clear();
+        for (int k = 0; k < kRimInteriorPoints; ++k) {
+          const LinePoint& q = p[static_cast<size_t>(first + dir * (kRimInteriorFrom + k))];
+          if ((q.flags & kFlagSaturated) == 0) peaks.push_back(static_cast<float>(q.peak / albedo(q)));
+        }
+        if (peaks.size() >= 3) {
+          std::nth_element(peaks.begin(), peaks.begin() + peaks.size() / 2, peaks.end());
+          const double gain = peaks[peaks.size() / 2];
+          int own = 0;
+          while (own < tail) {
+            const LinePoint& q = p[static_cast<size_t>(first + dir * own)];
+            if (q.peak >= kRimTailRatio * std::min(interior, gain * albedo(q))) break;
+            ++own;
+          }
+          if (own > 0) tail = own;
+        }
+      }
       // The corner: the first point in at the interior's level, on a stretch that runs along the columns
       // there (at most kRimMaxInteriorSlope columns per row over the kRimInteriorFrom points in from it).
       const LinePoint& corner = p[static_cast<size_t>(first + dir * tail)];

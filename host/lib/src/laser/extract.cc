@@ -524,7 +524,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   if (o.rim_rows && stats.noise_on_lit) {
     std::vector<std::pair<int, int>> at_bound;
     detail::RecentreRimRows(on, off, channel, stats.noise_dn, &line->points,
-                            o.rim_rows_at_bound ? &at_bound : nullptr);
+                            o.rim_rows_at_bound ? &at_bound : nullptr, o.rim_rows_albedo);
     if (!at_bound.empty())
       detail::ExtendLineEnds(on, off, channel, stats.noise_dn, &line->points, detail::kEndMinZ,
                              /*fill=*/false, /*tails=*/true, &at_bound);

@@ -541,8 +541,25 @@ constexpr double kRimTailClearPx = 2.0;
 constexpr double kRimMinZ = 10.0;
 constexpr double kRimMinSigmaDn = 0.5;
 constexpr int kRimMinPixels = 8;
+// The tail judged by each row's albedo (fifteenth session, rfrim7; ExtractOptions::rim_rows_albedo): the
+// step's wrong moves on the textured set (the bench's frames, 8 steps, f/4: 9 rows within 1 px made over it,
+// at 4 ends) were the side line's real last rows taken for its tail: at 2 ends (5 rows) on a dark checker
+// cell (laser-off 4-7 DN, peaks 15-34 DN) while the interior reaches onto a brighter one (off 5 -> 19 DN,
+// peaks 30 -> 150 DN), at 2 (4 rows) a slower fade on mid cells. After: 2 rows, one at each of the latter
+// (ObjectRowsTest.RimTailsJudgedByTheirAlbedo). The laser's light scales with the albedo, which the laser-off frame
+// shows (ambient times albedo): a tail row is one under kRimTailRatio of the interior's peak and of the
+// interior's gain (the median over its unsaturated points, at least 3, of peak over albedo) times the row's
+// own albedo (the laser-off frame's mean over the row's column and kRimAlbedoHalfPx either side, at least
+// kRimAlbedoFloorSigmas noise sigmas: below that the ratio is the noise's). This can only shorten the tail
+// (the corner moves out to the first row at its albedo's level); where it would leave no tail (the end
+// point itself at its albedo's level), the end keeps the interior's tail: a row past the rim shows the
+// flat top's albedo, not the side's, so its albedo does not say that the side's line reaches it. Both set a
+// priori (3 pixels, as wide as the line's core; 2 sigmas), not tuned. Figures: README.md (issue 15, rfrim7).
+constexpr int kRimAlbedoHalfPx = 1;
+constexpr double kRimAlbedoFloorSigmas = 2.0;
 int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,
-                    std::vector<LinePoint>* points, std::vector<std::pair<int, int>>* at_bound = nullptr);
+                    std::vector<LinePoint>* points, std::vector<std::pair<int, int>>* at_bound = nullptr,
+                    bool by_albedo = true);
 
 // After ScorePoints, before RecentreSteepLines: rows missing inside a stretch of line, looked for along the
 // stretch's curve by a matched filter over several rows (gaps.cc); `noise_dn` the frame's noise sigma.

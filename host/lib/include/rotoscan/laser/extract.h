@@ -151,6 +151,10 @@ struct ExtractOptions {
   // light pulls it there) handed to the end step's matched filter, which also fits the line's offset
   // (gaps.cc, ExtendLineEnds' tails; extract_steps.h has the figures).
   bool rim_rows_at_bound = true;
+  // With rim_rows: each tail row also judged against its own albedo (the laser-off frame) times the
+  // interior's peak per albedo, so that a dark cell's real last rows are not taken for the tail (ends.cc,
+  // extract_steps.h kRimAlbedoHalfPx; issue 15).
+  bool rim_rows_albedo = true;
   // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
   // stretch's curve with a matched filter over several rows, a threshold on their summed difference
   // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit
