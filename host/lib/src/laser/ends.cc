@@ -488,10 +488,9 @@ int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double n
         // The row may hold either line's light (a wrong move is off by the move), and the box places the line
         // anywhere within its |s| columns (extract_steps.h): the uncertainty at least both.
         const float c = static_cast<float>(c0 + best_s * std::abs(q.row - r0));
-        const float u = std::max({q.uncertainty_px, std::abs(c - q.column),
-                                  static_cast<float>(std::abs(best_s) / std::sqrt(3.0))});
-        q.quality *= (1.0f + q.uncertainty_px * q.uncertainty_px) / (1.0f + u * u);
-        q.uncertainty_px = u;
+        WidenUncertainty(std::max({static_cast<double>(q.uncertainty_px), std::abs(double{c} - q.column),
+                                   std::abs(best_s) / std::sqrt(3.0)}),
+                         &q);
         q.column = c;
         ++count;
       }

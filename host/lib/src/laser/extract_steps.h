@@ -388,6 +388,10 @@ void ScorePoints(const PointTerms* terms, const FrameScale& frame, std::vector<L
 // ScorePoints' last step: a point whose albedo was divided out (kFlagAlbedoEdge) has no texture term but
 // kAlbedoResidualPx in its uncertainty, and its quality lowered to match.
 void ScoreAlbedoDivision(std::vector<LinePoint>* points);
+// A point's uncertainty set to `with`, its quality lowered as ScorePoints' 1 / (1 + u^2) would have it
+// (point.cc; used by every step that widens a point: the albedo division, the line breaks, the rim step, the
+// end step's tails).
+void WidenUncertainty(double with, LinePoint* p);
 
 // After ScorePoints: the quality of the kLineEndRows points at either end of each stretch of line (rows at
 // most 2 apart, no jump over max_jump_px per row) falls to 1 / (kLineEndRows + 1), 2 / ... of its value:
@@ -518,7 +522,7 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
 // (8 steps, all lit rows, across / per row): textured f/2.4 0.754 -> 0.623 % / 2.886 -> 2.862 %; textured
 // f/4, glossy at both: identical; 12 steps (not used to choose): textured f/4 1.030 -> 1.014 %, the rest
 // identical; found and RMS unchanged. A moved row's uncertainty (rfrim6): at least the move and |s| /
-// sqrt(3), its quality lowered to match (as point.cc's WidenUncertainty). A moved row may hold the light of
+// sqrt(3), its quality lowered to match (WidenUncertainty). A moved row may hold the light of
 // either line: the step's wrong moves (the side line's real last rows, whose peak a dark cell halved, taken
 // for its tail) are off along the row by about the move (10-14 px on the quality test's renders); and on a
 // line of s columns per row the box sum places the line anywhere within its box, |s| columns wide (a

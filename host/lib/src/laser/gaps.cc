@@ -690,13 +690,10 @@ int ExtendLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, double no
       }
     }
   }
-  // A tail's row may hold the light of either line: its uncertainty at least the move, its quality to match
-  // (as point.cc's WidenUncertainty).
+  // A tail's row may hold the light of either line: its uncertainty at least the move, its quality to match.
   for (const auto& [k, c] : tail_moves) {
     LinePoint& q = p[static_cast<size_t>(k)];
-    const float u = std::max(q.uncertainty_px, std::abs(c - q.column));
-    q.quality *= (1.0f + q.uncertainty_px * q.uncertainty_px) / (1.0f + u * u);
-    q.uncertainty_px = u;
+    WidenUncertainty(std::max(static_cast<double>(q.uncertainty_px), std::abs(double{c} - q.column)), &q);
     q.column = c;
   }
   if (filled.empty()) return 0;

@@ -130,14 +130,13 @@ int SteepestChange(const uint8_t* b, int lo, int hi) {
   return steepest;
 }
 
-// A point's uncertainty raised to `with`, its quality lowered as ScorePoints' 1 / (1 + u^2) would have it.
+}  // namespace
+
 void WidenUncertainty(double with, LinePoint* p) {
   const double u = p->uncertainty_px;
   p->uncertainty_px = static_cast<float>(with);
   p->quality = static_cast<float>(p->quality * (1.0 + u * u) / (1.0 + with * with));
 }
-
-}  // namespace
 
 const double* AlbedoBlurWeights() {
   static const AlbedoKernel kernel;
