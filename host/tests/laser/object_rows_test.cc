@@ -1164,6 +1164,61 @@ TEST(ObjectRowsTest, WebcamObjectRowsByCause) {
   }
 }
 
+// The webcam set data/scenes/`file` at `f_number`, `steps` turns over the circle x 2 lasers: for each laser's
+// frames (the step's rendered frames and the laser's index), its truth (LineTruth, and by row) and the line
+// each of `options` gives. With `bench_seeds` the frames are those `rotoscan bench accuracy` renders
+// (FrameSeed's placement -1, every frame), else the tests' own (placement 0), on which no constant was
+// chosen. Call it under ASSERT_NO_FATAL_FAILURE.
+using LinesVisit = std::function<void(const sim::RenderedStep& frames, int laser,
+                                      const std::vector<bundle::LinePoint>& truth,
+                                      const testing::TruthByRow& t, const std::vector<Line>& lines)>;
+void ForEachWebcamLine(const std::string& file, double f_number, int steps, bool bench_seeds,
+                       const std::vector<ExtractOptions>& options, const LinesVisit& visit) {
+  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + file));
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  for (sim::LaserModel& laser : scene->laser) laser.f_number = f_number;
+  auto renderer = sim::Renderer::Create(*scene);
+  ASSERT_TRUE(renderer.ok());
+  std::vector<LineExtractor> extractors;
+  for (const ExtractOptions& o : options) extractors.emplace_back(o);
+  std::vector<Line> lines(options.size());
+  for (int step = 0; step < steps; ++step) {
+    const double angle = step * 2.0 * 3.14159265358979323846 / steps;
+    const sim::RenderedStep frames =
+        bench_seeds ? (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, -1, step, 0))
+                    : (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0),
+                                              {true, true, true, false});
+    for (int k = 0; k < 2; ++k) {
+      const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
+      const testing::TruthByRow t = testing::TruthRows(truth);
+      for (size_t v = 0; v < extractors.size(); ++v)
+        ASSERT_TRUE(extractors[v].Extract(frames.frames[k], frames.frames[2], &lines[v]).ok());
+      visit(frames, k, truth, t, lines);
+    }
+  }
+}
+
+// The true line's crossing of `row` (which t.all holds) nearest `column`.
+double NearestCrossing(const testing::TruthByRow& t, int row, double column) {
+  double nearest = 1e9;
+  for (double c : t.all.at(row))
+    if (std::abs(c - column) < std::abs(nearest - column)) nearest = c;
+  return nearest;
+}
+
+// The true line's move from its crossing `nearest` of `row` to the next or previous row, the larger (px).
+double TrueSlopeAt(const testing::TruthByRow& t, int row, double nearest) {
+  double slope = 0;
+  for (int dr : {-1, 1}) {
+    const auto n = t.all.find(row + dr);
+    if (n == t.all.end()) continue;
+    double m = 1e9;
+    for (double c : n->second) m = std::min(m, std::abs(c - nearest));
+    slope = std::max(slope, m);
+  }
+  return slope;
+}
+
 // The albedo division's tests on the webcam sets: the object's rows of `scene_file` that `select` picks, per row
 // (no smoothing, no steep recentring), the extractor's centre against the plain centre of mass of the same row
 // (from the row's highest difference within the line's width), both against the truth across the line
@@ -1177,64 +1232,46 @@ struct DivisionRows {
 template <typename Select>
 DivisionRows CompareDivisionPerRow(const char* scene_file, double f_number, int steps, Select select) {
   DivisionRows out;
-  auto scene = sim::LoadScene(rotoscan::testing::DataPath(scene_file));
-  if (!scene.ok()) {
-    ADD_FAILURE() << scene.status().ToString();
-    return out;
-  }
-  for (sim::LaserModel& laser : scene->laser) laser.f_number = f_number;
-  auto renderer = sim::Renderer::Create(*scene);
-  if (!renderer.ok()) {
-    ADD_FAILURE() << renderer.status().ToString();
-    return out;
-  }
   ExtractOptions per_row;
   per_row.smooth_half_rows = 0;
   per_row.steep_across = false;
-  LineExtractor extractor(per_row);
   double sum2 = 0, plain_sum2 = 0;
-  for (int step = 0; step < steps; ++step) {
-    const double angle = step * 2.0 * 3.14159265358979323846 / steps;
-    const sim::RenderedStep frames =
-        (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0), {true, true, true, false});
-    cv::Mat off;
-    cv::extractChannel(frames.frames[2], off, 2);
-    for (int k = 0; k < 2; ++k) {
-      std::map<int, std::vector<double>> object_by_row;
-      for (const bundle::LinePoint& t : (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle))
-        if (t.object != 0) object_by_row[t.row].push_back(t.column);
-      Line line;
-      if (!extractor.Extract(frames.frames[k], frames.frames[2], &line).ok()) {
-        ADD_FAILURE() << "extraction failed";
-        return out;
-      }
-      EXPECT_TRUE(line.stats.noise_on_lit);  // the webcam's frames
-      cv::Mat on, difference;
-      cv::extractChannel(frames.frames[k], on, 2);
-      cv::subtract(on, off, difference);
-      for (const LinePoint& p : line.points) {
-        if (object_by_row.count(p.row) == 0) continue;
-        const uint8_t* d = difference.ptr<uint8_t>(p.row);
-        const int cols = difference.cols;
-        const int c = static_cast<int>(std::lround(p.column));
-        const int reach = static_cast<int>(p.width) + 2;
-        if (c - reach - 8 < 0 || c + reach + 8 >= cols) continue;
-        int peak = c;
-        for (int x = c - reach; x <= c + reach; ++x) peak = d[x] > d[peak] ? x : peak;
-        const double plain = EstimateCentre(Estimator::kCenterOfMass, d, cols, peak, peak, d[peak]);
-        if (!select(p, off.ptr<uint8_t>(p.row), d, cols, peak, plain)) continue;
-        const double across = std::min(2.0, pipeline::DistanceAcrossLine(p.column, p.row, object_by_row));
-        const double plain_across = std::min(2.0, pipeline::DistanceAcrossLine(plain, p.row, object_by_row));
-        if (plain_across >= 2.0 && across >= 2.0) continue;  // another line's
-        ++out.rows;
-        out.divided += (p.flags & kFlagAlbedoEdge) != 0;
-        sum2 += across * across;
-        plain_sum2 += plain_across * plain_across;
-        out.over += across > 1.0;
-        out.plain_over += plain_across > 1.0;
-      }
-    }
-  }
+  ForEachWebcamLine(
+      scene_file, f_number, steps, /*bench_seeds=*/false, {per_row},
+      [&](const sim::RenderedStep& frames, int k, const std::vector<bundle::LinePoint>& truth,
+          const testing::TruthByRow&, const std::vector<Line>& lines) {
+        std::map<int, std::vector<double>> object_by_row;
+        for (const bundle::LinePoint& t : truth)
+          if (t.object != 0) object_by_row[t.row].push_back(t.column);
+        const Line& line = lines[0];
+        EXPECT_TRUE(line.stats.noise_on_lit);  // the webcam's frames
+        cv::Mat on, off, difference;
+        cv::extractChannel(frames.frames[k], on, 2);
+        cv::extractChannel(frames.frames[2], off, 2);
+        cv::subtract(on, off, difference);
+        for (const LinePoint& p : line.points) {
+          if (object_by_row.count(p.row) == 0) continue;
+          const uint8_t* d = difference.ptr<uint8_t>(p.row);
+          const int cols = difference.cols;
+          const int c = static_cast<int>(std::lround(p.column));
+          const int reach = static_cast<int>(p.width) + 2;
+          if (c - reach - 8 < 0 || c + reach + 8 >= cols) continue;
+          int peak = c;
+          for (int x = c - reach; x <= c + reach; ++x) peak = d[x] > d[peak] ? x : peak;
+          const double plain = EstimateCentre(Estimator::kCenterOfMass, d, cols, peak, peak, d[peak]);
+          if (!select(p, off.ptr<uint8_t>(p.row), d, cols, peak, plain)) continue;
+          const double across = std::min(2.0, pipeline::DistanceAcrossLine(p.column, p.row, object_by_row));
+          const double plain_across =
+              std::min(2.0, pipeline::DistanceAcrossLine(plain, p.row, object_by_row));
+          if (plain_across >= 2.0 && across >= 2.0) continue;  // another line's
+          ++out.rows;
+          out.divided += (p.flags & kFlagAlbedoEdge) != 0;
+          sum2 += across * across;
+          plain_sum2 += plain_across * plain_across;
+          out.over += across > 1.0;
+          out.plain_over += plain_across > 1.0;
+        }
+      });
   out.rms = std::sqrt(sum2 / std::max(1, out.rows));
   out.plain_rms = std::sqrt(plain_sum2 / std::max(1, out.rows));
   return out;
@@ -1257,7 +1294,7 @@ TEST(ObjectRowsTest, TexturedSliversInsideTheLineAreDividedOut) {
     // The case: around the plain centre of mass's run (0.85 of the width each side, and the 3 px the
     // extractor adds), the narrow rule's feature and not the wide rule's.
     const DivisionRows r = CompareDivisionPerRow(
-        "scenes/textured-webcam.json", f_number, steps,
+        "textured-webcam.json", f_number, steps,
         [](const LinePoint& p, const uint8_t* b, const uint8_t*, int, int, double plain) {
           if (p.peak < detail::kAlbedoNarrowMinPeakDn) return false;
           const int first = static_cast<int>(plain - 0.85 * p.width) - 3;
@@ -1293,7 +1330,7 @@ TEST(ObjectRowsTest, GlossyLimbShadingIsNotDividedOut) {
     // The case: over the plain centre's run above 0.15 of the peak and the 3 px the extractor adds each side,
     // a feature the albedo rule takes for an edge without the ramp test and not with it.
     const DivisionRows r = CompareDivisionPerRow(
-        "scenes/glossy-webcam.json", f_number, steps,
+        "glossy-webcam.json", f_number, steps,
         [](const LinePoint& p, const uint8_t* b, const uint8_t* d, int cols, int peak, double) {
           int first = peak, last = peak;
           while (first > 0 && 20 * d[first - 1] > 3 * d[peak]) --first;
@@ -1445,20 +1482,11 @@ TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
                           int{q.flags}, q.uncertainty_px, object_by_row.count(q.row) ? " object" : "");
             }
         }
-        double nearest = 1e9;
-        for (double c : t.all.at(p.row))
-          if (std::abs(c - p.column) < std::abs(nearest - p.column)) nearest = c;
+        const double nearest = NearestCrossing(t, p.row, p.column);
         int end = 99;  // rows to the object's line end
         for (int dr = 1; dr <= 12 && end == 99; ++dr)
           if (own_by_row.count(p.row + dr) == 0 || own_by_row.count(p.row - dr) == 0) end = dr;
-        double slope = 0;  // the true line's move to the next and previous rows (px)
-        for (int dr : {-1, 1}) {
-          const auto n = t.all.find(p.row + dr);
-          if (n == t.all.end()) continue;
-          double m = 1e9;
-          for (double c : n->second) m = std::min(m, std::abs(c - nearest));
-          slope = std::max(slope, m);
-        }
+        const double slope = TrueSlopeAt(t, p.row, nearest);
         bool jump = false;  // the object's truth jumps by over 20 px within 3 rows
         for (int dr = -3; dr < 3 && !jump; ++dr) {
           const auto n0 = own_by_row.find(p.row + dr), n1 = own_by_row.find(p.row + dr + 1);
@@ -1559,38 +1587,6 @@ TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
   EXPECT_EQ(static_cast<size_t>(over), bench_over);
 }
 
-// The webcam set data/scenes/`file` at `f_number`, `steps` turns over the circle x 2 lasers: for each laser's
-// frames, its truth (LineTruth, and by row) and the line each of `options` gives. With `bench_seeds` the
-// frames are those `rotoscan bench accuracy` renders (FrameSeed's placement -1, every frame), else the tests'
-// own (placement 0), on which no constant was chosen. Call it under ASSERT_NO_FATAL_FAILURE.
-using LinesVisit = std::function<void(const std::vector<bundle::LinePoint>& truth,
-                                      const testing::TruthByRow& t, const std::vector<Line>& lines)>;
-void ForEachWebcamLine(const std::string& file, double f_number, int steps, bool bench_seeds,
-                       const std::vector<ExtractOptions>& options, const LinesVisit& visit) {
-  auto scene = sim::LoadScene(rotoscan::testing::DataPath("scenes/" + file));
-  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
-  for (sim::LaserModel& laser : scene->laser) laser.f_number = f_number;
-  auto renderer = sim::Renderer::Create(*scene);
-  ASSERT_TRUE(renderer.ok());
-  std::vector<LineExtractor> extractors;
-  for (const ExtractOptions& o : options) extractors.emplace_back(o);
-  std::vector<Line> lines(options.size());
-  for (int step = 0; step < steps; ++step) {
-    const double angle = step * 2.0 * 3.14159265358979323846 / steps;
-    const sim::RenderedStep frames =
-        bench_seeds ? (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, -1, step, 0))
-                    : (*renderer)->RenderStep(angle, sim::FrameSeed(scene->seed, 0, step, 0),
-                                              {true, true, true, false});
-    for (int k = 0; k < 2; ++k) {
-      const auto truth = (*renderer)->LineTruth(static_cast<geometry::LaserId>(k), angle);
-      const testing::TruthByRow t = testing::TruthRows(truth);
-      for (size_t v = 0; v < extractors.size(); ++v)
-        ASSERT_TRUE(extractors[v].Extract(frames.frames[k], frames.frames[2], &lines[v]).ok());
-      visit(truth, t, lines);
-    }
-  }
-}
-
 // Issue 15 (rfglossy5): the object's foot on the table. Where the object's line fades at a sphere's limb it
 // curves into the corner with the table's faint line, so the junction step's straight fit of its bright side
 // crossed the table's line 1-5 rows past the true corner, and the table's first rows there were left on the
@@ -1615,8 +1611,8 @@ TEST(ObjectRowsTest, JunctionFaintRowsGoOnTheTablesLine) {
     for (const char* file : {"glossy-webcam.json", "textured-webcam.json"}) {
       ASSERT_NO_FATAL_FAILURE(
           ForEachWebcamLine(file, f_number, steps, /*bench_seeds=*/false, {ExtractOptions(), without},
-                            [&](const std::vector<bundle::LinePoint>& truth, const testing::TruthByRow& t,
-                                const std::vector<Line>& lines) {
+                            [&](const sim::RenderedStep&, int, const std::vector<bundle::LinePoint>& truth,
+                                const testing::TruthByRow& t, const std::vector<Line>& lines) {
                               std::map<int, std::vector<double>> object_by_row;
                               for (const bundle::LinePoint& q : truth)
                                 if (q.object) object_by_row[q.row].push_back(q.column);
@@ -1692,8 +1688,8 @@ TEST(ObjectRowsTest, RimRowsGoOnTheFlatTopsLine) {
       int all_over[3] = {0, 0, 0};
       ASSERT_NO_FATAL_FAILURE(ForEachWebcamLine(
           file, f_number, steps, /*bench_seeds=*/false, {ExtractOptions(), without, without_bound},
-          [&](const std::vector<bundle::LinePoint>&, const testing::TruthByRow& t,
-              const std::vector<Line>& lines) {
+          [&](const sim::RenderedStep&, int, const std::vector<bundle::LinePoint>&,
+              const testing::TruthByRow& t, const std::vector<Line>& lines) {
             std::map<int, float> plain_column;
             for (const LinePoint& p : lines[1].points) plain_column[p.row] = p.column;
             for (int v = 0; v < 3; ++v) {
@@ -1702,11 +1698,7 @@ TEST(ObjectRowsTest, RimRowsGoOnTheFlatTopsLine) {
                 if (o == t.object.end() || !o->second) continue;
                 const double across = pipeline::DistanceAcrossLine(p.column, p.row, t.all);
                 all_over[v] += across > 1.0;
-                // The true line's move to the next or previous row, from its crossing nearest the point.
-                const std::vector<double>& here = t.all.at(p.row);
-                double nearest = here[0];
-                for (double c : here)
-                  if (std::abs(c - p.column) < std::abs(nearest - p.column)) nearest = c;
+                const double nearest = NearestCrossing(t, p.row, p.column);
                 // A row the step moved (its column not the one without the step): its error along the row
                 // against its uncertainty (about two standard errors, extract.h).
                 const auto plain = plain_column.find(p.row);
@@ -1714,15 +1706,7 @@ TEST(ObjectRowsTest, RimRowsGoOnTheFlatTopsLine) {
                   ++moved;
                   moved_beyond += std::abs(p.column - nearest) > 2.0 * p.uncertainty_px;
                 }
-                double slope = 0;
-                for (int dr : {-1, 1}) {
-                  const auto n = t.all.find(p.row + dr);
-                  if (n == t.all.end()) continue;
-                  double m = 1e9;
-                  for (double c : n->second) m = std::min(m, std::abs(c - nearest));
-                  slope = std::max(slope, m);
-                }
-                if (slope <= 6.0) continue;
+                if (TrueSlopeAt(t, p.row, nearest) <= 6.0) continue;  // not a flat top's line
                 ++rows[v];
                 over[v] += across > 1.0;
                 sum2[v] += std::min(2.0, across) * std::min(2.0, across);
@@ -1774,8 +1758,8 @@ TEST(ObjectRowsTest, RimTailsJudgedByTheirAlbedo) {
     int rows[2] = {0, 0}, over[2] = {0, 0};  // [without, with]
     ASSERT_NO_FATAL_FAILURE(ForEachWebcamLine(
         "textured-webcam.json", f_number, steps, /*bench_seeds=*/true, {without, ExtractOptions()},
-        [&](const std::vector<bundle::LinePoint>&, const testing::TruthByRow& t,
-            const std::vector<Line>& lines) {
+        [&](const sim::RenderedStep&, int, const std::vector<bundle::LinePoint>&,
+            const testing::TruthByRow& t, const std::vector<Line>& lines) {
           for (int v = 0; v < 2; ++v) {
             for (const LinePoint& p : lines[static_cast<size_t>(v)].points) {
               const auto o = t.object.find(p.row);
