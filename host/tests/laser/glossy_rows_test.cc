@@ -372,7 +372,7 @@ TEST(GlossyRowsTest, EffectsOneAtATime) {
     }
     results[v.name] = r;
   }
-  // The figures below: 2 steps / 8 steps (README, the #15 item of Known gaps).
+  // The figures below: 2 steps / 8 steps (doc/issue15-log.md).
   auto summary = [&](const char* variant, int estimator) { return Summarise(results.at(variant).by[estimator]); };
   const Summary all = summary("webcam preset (all on)", 0), lobe_off = summary("no specular lobe", 0);
   ASSERT_GT(all.rows, 500);
@@ -403,7 +403,7 @@ TEST(GlossyRowsTest, EffectsOneAtATime) {
   // the right's -0.46, on its 320 unsaturated rows at 8 steps; the centre of mass +0.20 / -0.11). Without
   // the step the own estimate is the centre of mass's (0.169 / 0.167). With the webcam's noise and speckle
   // the step still wins there (all on, 8 steps: 3.34 % of the rows over 1 px, 0.443 px, against 3.81 % and
-  // 0.446 without it): README, the #15 item of Known gaps. These two checks state the finding; a steep step
+  // 0.446 without it): doc/issue15-log.md. These two checks state the finding; a steep step
   // that follows the curve (a fit of row against column where the line is steep?) should fail the second.
   const Summary clean_no_steep = summary("clean, no lobe", 8);
   EXPECT_LT(std::abs(clean_no_steep.rms - summary("clean, no lobe", 4).rms), 0.02);

@@ -1368,7 +1368,7 @@ TEST(ObjectRowsTest, GlossyLimbShadingIsNotDividedOut) {
 // line); a grazing apex (within 8 rows of the line's end, 2-6 px per row: the sphere's top, where its line
 // begins); a line's end (within 4 rows); divided (kFlagAlbedoEdge); the light shifted (the noise-free
 // centre over 0.5 px off: the plain centre of mass, so on the textured set the albedo's pull is in it);
-// else the rest (speckle). README.md, issue 15, has the figures. Fifteenth session (rfglossy5):
+// else the rest (speckle). doc/issue15-log.md has the figures. Fifteenth session (rfglossy5):
 // ROTOSCAN_BENCH_PART=table lists the table's rows instead (over 1 px, "at the table's line" then meaning the
 // object's line within 6 rows, and each lit row without a point, with the frame's threshold), its count
 // `bench accuracy`'s table share; ROTOSCAN_BENCH_ROWS_AROUND=1 prints the points within 10 rows of each row

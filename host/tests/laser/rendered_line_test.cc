@@ -153,7 +153,7 @@ TEST(RenderedLineTest, WebcamQualityPredictsErrorAndFigures) {
     ASSERT_GT(points.size(), 1000u) << file;
     const pipeline::LineAccuracy& total = parts.all;
     std::printf("%s: flagged: glint %d, albedo edge %d\n", file, glints, albedo_edges);
-    // The target is judged on all rows across the line (README, issue 15); the rest is information.
+    // The target is judged on all rows across the line (README's figures table, issue 15); the rest is information.
     const std::pair<const char*, const pipeline::LineAccuracy*> split[] = {
         {"all", &parts.all}, {"object", &parts.object}, {"table", &parts.table}};
     for (const auto& [name, a] : split) {
@@ -376,7 +376,7 @@ TEST(RenderedLineTest, GlintsAreFlaggedWhereTheTruthHasThem) {
 namespace rotoscan::laser {
 namespace {
 
-// The speckle limit of the line centre (README, issue 15): Dorsch, Haeusler and Herrmann (Applied Optics
+// The speckle limit of the line centre (doc/issue15-log.md): Dorsch, Haeusler and Herrmann (Applied Optics
 // 33(7), 1994) give the centre uncertainty in the image plane as C lambda F# / pi, C the speckle contrast
 // (1 for fully developed speckle): at 660 nm and 2.8 um pixels 0.30 px at f/4, 0.18 px at f/2.4 and 0.15 px
 // at f/2.0. Here a perfect straight vertical line (a Gaussian profile, no blur, no noise, no JPEG, no

@@ -78,7 +78,7 @@ constexpr int kAlbedoEdgeSpanPx = 4;
 // 7; 26: 2 against 3), so the gate takes only the monotone ones. bench accuracy, 8 steps, all lit rows over
 // 1 px across: glossy f/4 1.533 -> 1.378 % (object 1.629 -> 1.370 %), f/2.4 1.177 -> 1.053 % (object 1.189 ->
 // 0.982 %); textured unchanged at both (0.862 %, 1.114 %; its RMS across +0.001 px at f/4); on 6, 7 and 12
-// steps (not used to choose it) glossy 0.04-0.30 points lower, textured 0-2 rows more (README.md, issue 15).
+// steps (not used to choose it) glossy 0.04-0.30 points lower, textured 0-2 rows more (doc/issue15-log.md).
 // ObjectRowsTest.GlossyLimbShadingIsNotDividedOut checks it on frames of other seeds.
 constexpr int kShadingRampNum = 3, kShadingRampDen = 5;
 constexpr int kShadingMonotoneNum = 6, kShadingMonotoneDen = 5;
@@ -444,7 +444,7 @@ constexpr int kEndResumeRows = 16;
 // side pulls it). `bench accuracy`, 8 steps, over 1 px across, with the junction step: 0 / 1 / 2 / 3 rows
 // (1 = the last row only): f/4 glossy 1.60 / 1.58 / 1.53 / 1.50 %, textured 0.98 / 0.98 / 0.93 / 0.90 %; f/2.4
 // 1.21 / 1.19 / 1.18 / 1.13 %, 1.33 / 1.28 / 1.22 / 1.20 %; 2 kept (3: textured f/4's RMS per row 0.318 ->
-// 0.319 px); all end rows so: the tenth session's 52 / 49 and worse rows 2-7 from the end (README, issue 15).
+// 0.319 px); all end rows so: the tenth session's 52 / 49 and worse rows 2-7 from the end (doc/issue15-log.md).
 // (Those were measured on rftable3's branch, without rfalbedo3's change; on the merged main, 0 -> 2 rows: f/4
 // glossy 1.595 -> 1.533 %, textured 0.910 -> 0.862 %; f/2.4 1.208 -> 1.177 %, 1.221 -> 1.114 %; LineEndTest.
 // TableRimLastRowsNearTheTruthOnWebcamFrames: 17 -> 10 of 64-65 rows over 1 px.)
@@ -456,7 +456,7 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
 // a bright line (the object's foot), whose profiles the bright line's blur fills, put on the faint line's
 // straight fit from further in (ends.cc, which says why and how the constants act); `threshold` the frame's
 // detection threshold. Returns how many rows moved. Chosen on the webcam sets (8 steps x 2 lasers, f/4 and
-// f/2.4, `rotoscan bench accuracy`; README, issue 15, thirteenth session): the table's rows over 1 px
+// f/2.4, `rotoscan bench accuracy`; doc/issue15-log.md, thirteenth session): the table's rows over 1 px
 // across, f/4 glossy 1.70 -> 1.54 %, textured 2.53 -> 1.06 %; f/2.4 1.39 -> 1.24 %, 2.99 -> 1.75 %; the
 // object's no worse. Each constant was a choice among few: the ratio 3 (4: textured's table 1.33 %), the
 // reach 5 rows past the corner (3 / 4: 1.38 / 1.15 %; the rows over 1 px ran to 5 rows past the object's,
@@ -510,7 +510,7 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
 // the bench; tried and dropped: a 4 px per row floor, tails required on the interior's line. bench accuracy,
 // all lit rows over 1 px across, 8 steps, f/4 / f/2.4: glossy 1.378 -> 1.362 % / 1.053 -> 1.022 %, textured
 // 0.862 -> 0.635 % / 1.114 -> 0.754 % (object 0.858 -> 0.615 %, 1.052 -> 0.567 %; table 0.873 -> 0.689
-// %, 1.287 %); 6, 7 and 12 steps lower or equal in all 12 set and aperture pairs (README.md, issue 15); found
+// %, 1.287 %); 6, 7 and 12 steps lower or equal in all 12 set and aperture pairs (doc/issue15-log.md); found
 // unchanged; RMS across +0.001-0.002 px (rows that were over 1 px now within it); per row, where a 9 px per
 // row line's error is 9 times that across, -0.08 to +0.07 points (the textured object's at f/4 1.198 -> 1.295
 // %).
@@ -558,7 +558,7 @@ constexpr int kRimMinPixels = 8;
 // (the corner moves out to the first row at its albedo's level); where it would leave no tail (the end
 // point itself at its albedo's level), the end keeps the interior's tail: a row past the rim shows the
 // flat top's albedo, not the side's, so its albedo does not say that the side's line reaches it. Both set a
-// priori (3 pixels, as wide as the line's core; 2 sigmas), not tuned. Figures: README.md (issue 15, rfrim7).
+// priori (3 pixels, as wide as the line's core; 2 sigmas), not tuned. Figures: doc/issue15-log.md (rfrim7).
 constexpr int kRimAlbedoHalfPx = 1;
 constexpr double kRimAlbedoFloorSigmas = 2.0;
 int RecentreRimRows(const cv::Mat& on, const cv::Mat& off, int channel, double noise_dn,

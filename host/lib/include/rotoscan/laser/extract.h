@@ -163,7 +163,7 @@ struct ExtractOptions {
   // With fill_gaps: a stretch's faint straight continuation past its end, found by the matched filter summed
   // over its run of rows (gaps.cc, ExtendLineEnds: the textured webcam object's flat top). Opt-in: on the
   // webcam sets it finds more rows (textured f/4 95.9 -> 97.4 %) but adds rows over 1 px (2.29 -> 2.65 %)
-  // and ~17 % of a typical webcam frame's time (README, issue 15).
+  // and ~17 % of a typical webcam frame's time (doc/issue15-log.md).
   bool extend_line_ends = false;
 
   // OK, or kInvalidArgument naming the bad field.
