@@ -872,8 +872,9 @@ TEST(SmoothAlongLineTest, MatchesTheDefiningWeightedFit) {
 // kind of check). Wrong peaks make second fits; gaps make stretch ends (windows cut on either side) and short
 // stretches; windows within and beyond the 64-bit masks. Every vector path must give the same bits
 // (sixteenth session: SteepFitsAvx2, 4 points at a time; the test fails when that kernel skips its second fit
-// or lets in a neighbour past the stretch's end, both tried; summing a lane's terms in reverse order changes
-// the double's last bits only, which the float column, all the extractor keeps, does not show).
+// or lets in a neighbour past the stretch's end, both tried, on its consecutive points' path and on the other;
+// summing a lane's terms in reverse order changes the double's last bits only, which the float column, all the
+// extractor keeps, does not show).
 TEST(SmoothAlongLineTest, SteepJoinedFitsMatchTheirDefinitionOnEveryVectorPath) {
   std::mt19937 rng(16);
   std::normal_distribution<double> noise(0.0, 0.3);
@@ -964,6 +965,30 @@ TEST(SmoothAlongLineTest, SteepJoinedFitsMatchTheirDefinitionOnEveryVectorPath) 
     }
   }
   EXPECT_GT(second_fits, 100);
+  // Steep runs between runs of 6 to 9 rows without a steep step (each smoothed as a stretch of its own): the
+  // joined fits' points are then not consecutive, which SteepFitsAvx2 reads otherwise. The paths to the bit.
+  std::vector<LinePoint> mixed;
+  double c = 400.0;
+  for (int r = 0; r < 600; ++r) {
+    const bool steep = (r / 12) % 2 == 0 ? r % 12 < 4 : r % 12 < 2;
+    c += steep ? 2.6 + noise(rng) : 0.4 + noise(rng) * 0.3;
+    LinePoint p;
+    p.row = r;
+    p.column = static_cast<float>(c + (unit(rng) < 0.08 ? 1.5 : 0.0));
+    mixed.push_back(p);
+  }
+  for (int order : {0, 1}) {
+    for (int h : {3, 12}) {
+      std::vector<std::vector<LinePoint>> results;
+      ForEachVectorPath([&] {
+        std::vector<LinePoint> points = mixed;
+        SmoothAlongLine(&points, h, order, 1.5, 0.5, &scratch, 3.0, false);
+        results.push_back(points);
+      });
+      for (size_t i = 0; i < mixed.size(); ++i)
+        ASSERT_EQ(results[0][i].column, results[1][i].column) << "mixed, order " << order << " h " << h << " point " << i;
+    }
+  }
 }
 
 }  // namespace

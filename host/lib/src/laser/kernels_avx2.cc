@@ -182,14 +182,20 @@ __attribute__((target("avx2"))) inline void SolveSteep(const SteepSums& u, bool 
 
 // The sums of the lanes' fits over their windows, less (where the fit (a, b) and limit are given) the
 // neighbours that fit does not explain: the point itself always stays.
-__attribute__((target("avx2"))) inline SteepSums SteepFitSums(const float* raw, __m128i vi, __m256d ri, __m128i lo,
-                                                             __m128i hi, int h, bool drop, __m256d a, __m256d b,
-                                                             __m256d limit) {
+// The lanes' neighbours raw[i + x]: one load where the 4 points are consecutive (most: a steep line's rows).
+__attribute__((target("avx2"))) inline __m256d Neighbours(const float* raw, __m128i vi, const int* i4, bool consecutive,
+                                                         int x) {
+  if (consecutive) return _mm256_cvtps_pd(_mm_loadu_ps(raw + i4[0] + x));
+  return _mm256_cvtps_pd(_mm_i32gather_ps(raw, _mm_add_epi32(vi, _mm_set1_epi32(x)), 4));
+}
+__attribute__((target("avx2"))) inline SteepSums SteepFitSums(const float* raw, __m128i vi, const int* i4, bool consecutive,
+                                                             __m256d ri, __m128i lo, __m128i hi, int h, bool drop,
+                                                             __m256d a, __m256d b, __m256d limit) {
   const __m256d zero = _mm256_setzero_pd();
   SteepSums u{zero, zero, zero, zero, zero};
   for (int x = -h; x <= h; ++x) {
     const __m128i j = _mm_add_epi32(vi, _mm_set1_epi32(x));
-    const __m256d raw_j = _mm256_cvtps_pd(_mm_i32gather_ps(raw, j, 4));
+    const __m256d raw_j = Neighbours(raw, vi, i4, consecutive, x);
     __m256d in = InWindow(j, lo, hi);
     if (drop && x != 0) in = _mm256_andnot_pd(Unexplained(raw_j, x, a, b, limit), in);
     if (_mm256_movemask_pd(in) == 0) continue;  // every lane would add +0
@@ -212,10 +218,11 @@ __attribute__((target("avx2"))) void SteepFitsAvx2(const float* raw, const int* 
   const __m128i vi = _mm_loadu_si128(reinterpret_cast<const __m128i*>(i4));
   const __m128i lo = _mm_max_epi32(_mm_set1_epi32(start), _mm_sub_epi32(vi, _mm_set1_epi32(h)));
   const __m128i hi = _mm_min_epi32(_mm_set1_epi32(end), _mm_add_epi32(vi, _mm_set1_epi32(h)));
-  const __m256d ri = _mm256_cvtps_pd(_mm_i32gather_ps(raw, vi, 4));
+  const bool consecutive = i4[1] == i4[0] + 1 && i4[2] == i4[0] + 2 && i4[3] == i4[0] + 3;
+  const __m256d ri = Neighbours(raw, vi, i4, consecutive, 0);
   const __m256d zero = _mm256_setzero_pd();
   __m256d a, b;
-  SolveSteep(SteepFitSums(raw, vi, ri, lo, hi, h, false, zero, zero, zero), slope, &a, &b);
+  SolveSteep(SteepFitSums(raw, vi, i4, consecutive, ri, lo, hi, h, false, zero, zero, zero), slope, &a, &b);
   a = _mm256_add_pd(a, ri);
   const __m256d limit =
       _mm256_mul_pd(_mm256_set1_pd(outlier_px), _mm256_sqrt_pd(_mm256_add_pd(_mm256_set1_pd(1.0), _mm256_mul_pd(b, b))));
@@ -223,12 +230,12 @@ __attribute__((target("avx2"))) void SteepFitsAvx2(const float* raw, const int* 
   for (int x = -h; x <= h; ++x) {
     if (x == 0) continue;  // the point itself is always explained
     const __m128i j = _mm_add_epi32(vi, _mm_set1_epi32(x));
-    const __m256d raw_j = _mm256_cvtps_pd(_mm_i32gather_ps(raw, j, 4));
+    const __m256d raw_j = Neighbours(raw, vi, i4, consecutive, x);
     fails = _mm256_or_pd(fails, _mm256_and_pd(InWindow(j, lo, hi), Unexplained(raw_j, x, a, b, limit)));
   }
   if (_mm256_movemask_pd(fails) != 0) {  // the second fit, without the neighbours the first does not explain
     __m256d a2, b2;
-    SolveSteep(SteepFitSums(raw, vi, ri, lo, hi, h, true, a, b, limit), slope, &a2, &b2);
+    SolveSteep(SteepFitSums(raw, vi, i4, consecutive, ri, lo, hi, h, true, a, b, limit), slope, &a2, &b2);
     a = _mm256_blendv_pd(a, _mm256_add_pd(a2, ri), fails);
   }
   _mm256_storeu_pd(fit_a, a);
