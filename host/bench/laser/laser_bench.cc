@@ -24,8 +24,9 @@
 //   BM_Noise/<frames>                  the noise sample alone (the threshold's): 0 the frames above,
 //                                      1 the typical frames
 //   BM_WebcamStep/<step>               a step after the row loop alone on the typical frames: 0 the gap
-//                                      step, 1 the steep step, 2 the line ends (points: filled / moved /
-//                                      measured per frame); second argument 1: one pair, cached
+//                                      step, 1 the steep step, 2 the line ends, 3 the smoothing (points:
+//                                      filled / moved / measured / smoothed per frame); second argument 1:
+//                                      one pair, cached
 //
 // Frames: 16 different pairs (40 MB, more than the caches) of a webcam-like line (12 px wide, saturated,
 // 1.4 DN noise) crossing every row: the worst case, a real object covers fewer rows; and the line is
@@ -242,7 +243,9 @@ BENCHMARK(BM_Noise)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 // The steps after the row loop alone, on the typical frames (WebcamFrames), each from the points it is given
 // in the default extractor (the extractor run with it and the later steps off; copied each iteration):
 // 0 the gap step (FillLineGaps, gaps.cc), 1 the steep step (RecentreSteepLines, steep.cc), 2 the line ends
-// (RecentreLineEnds, ends.cc). The frames come from memory here, not from the cache as after the row pass.
+// (RecentreLineEnds, ends.cc), 3 the along-line smoothing (SmoothAlongLine, smooth.cc, with the webcam frames'
+// steep steps joined and the curvature correction; on the points of every step before it, the rim step off). The frames come from memory
+// here, not from the cache as after the row pass.
 void BM_WebcamStep(benchmark::State& state) {
   const Frames& f = WebcamFrames();
   const int which = static_cast<int>(state.range(0));
@@ -251,11 +254,15 @@ void BM_WebcamStep(benchmark::State& state) {
     rotoscan::laser::ExtractOptions options;
     options.smooth_half_rows = 0;
     options.line_ends = false;
-    options.steep_across = which == 2;
+    options.steep_across = which >= 2;
     options.fill_gaps = which >= 1;
+    options.line_ends = which == 3;
+    options.rim_rows = which != 3;  // after the smoothing in the extractor
     if (!rotoscan::laser::LineExtractor(options).Extract(f.on[i], f.off[i], &lines[i]).ok()) std::abort();
   }
   std::vector<rotoscan::laser::LinePoint> points;
+  const rotoscan::laser::ExtractOptions defaults;
+  std::vector<float> scratch;
   size_t i = 0, total = 0;
   for (auto _ : state) {
     points = lines[i].points;
@@ -265,20 +272,25 @@ void BM_WebcamStep(benchmark::State& state) {
     } else if (which == 1) {
       total += static_cast<size_t>(
           rotoscan::laser::detail::RecentreSteepLines(f.on[i], f.off[i], 0, s.threshold_dn, &points));
-    } else {
+    } else if (which == 2) {
       total += static_cast<size_t>(
           rotoscan::laser::detail::RecentreLineEnds(f.on[i], f.off[i], 0, s.threshold_dn, &points));
+    } else {
+      rotoscan::laser::SmoothAlongLine(&points, defaults.smooth_half_rows, defaults.smooth_order,
+                                       defaults.smooth_max_jump_px, defaults.smooth_outlier_px, &scratch,
+                                       defaults.smooth_steep_step_px, defaults.smooth_curvature);
+      total += points.size();
     }
     benchmark::DoNotOptimize(points.data());
     if (state.range(1) == 0) i = (i + 1) % f.on.size();
   }
   state.counters["frames_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
   state.counters["points_per_frame"] = static_cast<double>(total) / std::max<int64_t>(1, state.iterations());
-  state.SetLabel(std::string(which == 0 ? "gap step" : which == 1 ? "steep step" : "line ends") +
+  state.SetLabel(std::string(which == 0 ? "gap step" : which == 1 ? "steep step" : which == 2 ? "line ends" : "smoothing") +
                  (state.range(1) == 1 ? ", cached" : ""));
 }
 // Arguments: the step (above); 1: one pair over and over (the frames in the cache, as after the row pass).
-BENCHMARK(BM_WebcamStep)->ArgsProduct({{0, 1, 2}, {0, 1}})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_WebcamStep)->ArgsProduct({{0, 1, 2, 3}, {0, 1}})->Unit(benchmark::kMicrosecond);
 
 
 // The parts of BM_ExtractTriangulate/0/1/0 alone, on the lines it extracts (per row, then copied each

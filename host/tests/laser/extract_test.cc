@@ -865,6 +865,132 @@ TEST(SmoothAlongLineTest, MatchesTheDefiningWeightedFit) {
   }
 }
 
+// A steep line's stretches (every row's step over max_jump_px, joined by steep_step_change_px: each point
+// fitted over its window of the joined stretch, the outlier test across the line), against the definition:
+// the weighted fit over the window, then again without the neighbours more than outlier_px sqrt(1 + b^2) from
+// the first (order 0 and 1; order 2's parabola has no single slope and is left to MatchesTheDefiningWeightedFit's
+// kind of check). Wrong peaks make second fits; gaps make stretch ends (windows cut on either side) and short
+// stretches; windows within and beyond the 64-bit masks. Every vector path must give the same bits
+// (sixteenth session: SteepFitsAvx2, 4 points at a time; the test fails when that kernel skips its second fit
+// or lets in a neighbour past the stretch's end, both tried, on its consecutive points' path and on the other;
+// summing a lane's terms in reverse order changes the double's last bits only, which the float column, all the
+// extractor keeps, does not show).
+TEST(SmoothAlongLineTest, SteepJoinedFitsMatchTheirDefinitionOnEveryVectorPath) {
+  std::mt19937 rng(16);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::vector<LinePoint> raw;
+  std::vector<std::pair<int, int>> stretches;  // [first, last] indices, each joined as the smoothing joins it
+  for (int r = 0; r < 700;) {
+    const int length = 1 + static_cast<int>(unit(rng) * 60);
+    const double slope = (unit(rng) < 0.5 ? -1.0 : 1.0) * (2.2 + 0.6 * unit(rng));
+    const double start_column = 300.0 + 200.0 * unit(rng);
+    const int first = static_cast<int>(raw.size());
+    for (int k = 0; k < length; ++k) {
+      LinePoint p;
+      p.row = r + k;
+      double c = start_column + slope * k + noise(rng);
+      if (unit(rng) < 0.08) c += (unit(rng) < 0.5 ? -1.0 : 1.0) * (1.0 + 1.5 * unit(rng));  // a wrong peak
+      p.column = static_cast<float>(c);
+      raw.push_back(p);
+    }
+    // Split where the smoothing would, so that the definition below sees its stretches: a step within 1.5 px
+    // joins; a larger one where it is within 3 px of the step before (rows consecutive: not a segment's first).
+    // No 6 rows in a row without a steep step (they would be smoothed as a stretch of their own).
+    int s = first;
+    for (int k = first + 1; k < static_cast<int>(raw.size()); ++k) {
+      auto step = [&](int at) { return raw[static_cast<size_t>(at)].column - raw[static_cast<size_t>(at - 1)].column; };
+      const bool joins = std::abs(step(k)) <= 1.5 || (k - 1 > first && std::abs(step(k) - step(k - 1)) <= 3.0);
+      if (k - 5 > first) {
+        bool flat = true;
+        for (int m = k - 4; m <= k; ++m) flat = flat && std::abs(step(m)) <= 1.5;
+        ASSERT_FALSE(flat) << "row " << raw[static_cast<size_t>(k)].row;
+      }
+      if (!joins) {
+        stretches.emplace_back(s, k - 1);
+        s = k;
+      }
+    }
+    stretches.emplace_back(s, static_cast<int>(raw.size()) - 1);
+    r += length + 2 + static_cast<int>(unit(rng) * 3);  // a gap
+  }
+  int second_fits = 0;
+  std::vector<float> scratch;
+  for (int order : {0, 1}) {
+    for (int h : {3, 12, 40}) {
+      std::vector<std::vector<LinePoint>> results;
+      ForEachVectorPath([&] {
+        std::vector<LinePoint> points = raw;
+        SmoothAlongLine(&points, h, order, 1.5, 0.5, &scratch, 3.0, false);
+        results.push_back(points);
+      });
+      ASSERT_EQ(results.size(), 2u);
+      for (size_t i = 0; i < raw.size(); ++i)
+        ASSERT_EQ(results[0][i].column, results[1][i].column) << "order " << order << " h " << h << " point " << i;
+      double worst = 0;
+      for (const auto& [start, end] : stretches) {
+        if (end == start) continue;  // a single point: not smoothed
+        for (int i = start; i <= end; ++i) {
+          const int lo = std::max(start, i - h), hi = std::min(end, i + h);
+          // The definition: weighted least squares of column against x = j - i, weight h + 1 - |x|.
+          auto solve = [&](const std::vector<int>& use, double* slope) {
+            double s0 = 0, s1 = 0, s2 = 0, t0 = 0, t1 = 0;
+            for (int j : use) {
+              const double x = j - i, w = h + 1 - std::abs(x), c = raw[static_cast<size_t>(j)].column;
+              s0 += w, s1 += w * x, s2 += w * x * x, t0 += w * c, t1 += w * x * c;
+            }
+            const double det = s0 * s2 - s1 * s1;
+            if (order == 0 || !(det > 1e-9 * s0 * s2)) {
+              *slope = 0;
+              return t0 / s0;
+            }
+            *slope = (s0 * t1 - s1 * t0) / det;
+            return (s2 * t0 - s1 * t1) / det;
+          };
+          std::vector<int> all, kept;
+          for (int j = lo; j <= hi; ++j) all.push_back(j);
+          double b = 0;
+          const double a = solve(all, &b);
+          for (int j : all) {
+            if (j == i || std::abs(raw[static_cast<size_t>(j)].column - (a + (j - i) * b)) <= 0.5 * std::sqrt(1.0 + b * b))
+              kept.push_back(j);
+          }
+          double unused = 0;
+          const double expected = kept.size() == all.size() ? a : solve(kept, &unused);
+          second_fits += kept.size() != all.size();
+          worst = std::max(worst, std::abs(results[0][static_cast<size_t>(i)].column - expected));
+        }
+      }
+      EXPECT_LT(worst, 3e-4) << "order " << order << " h " << h;  // float columns: ~6e-5 px at 500 px
+    }
+  }
+  EXPECT_GT(second_fits, 100);
+  // Steep runs between runs of 6 to 9 rows without a steep step (each smoothed as a stretch of its own): the
+  // joined fits' points are then not consecutive, which SteepFitsAvx2 reads otherwise. The paths to the bit.
+  std::vector<LinePoint> mixed;
+  double c = 400.0;
+  for (int r = 0; r < 600; ++r) {
+    const bool steep = (r / 12) % 2 == 0 ? r % 12 < 4 : r % 12 < 2;
+    c += steep ? 2.6 + noise(rng) : 0.4 + noise(rng) * 0.3;
+    LinePoint p;
+    p.row = r;
+    p.column = static_cast<float>(c + (unit(rng) < 0.08 ? 1.5 : 0.0));
+    mixed.push_back(p);
+  }
+  for (int order : {0, 1}) {
+    for (int h : {3, 12}) {
+      std::vector<std::vector<LinePoint>> results;
+      ForEachVectorPath([&] {
+        std::vector<LinePoint> points = mixed;
+        SmoothAlongLine(&points, h, order, 1.5, 0.5, &scratch, 3.0, false);
+        results.push_back(points);
+      });
+      for (size_t i = 0; i < mixed.size(); ++i)
+        ASSERT_EQ(results[0][i].column, results[1][i].column) << "mixed, order " << order << " h " << h << " point " << i;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace rotoscan::laser
 

@@ -111,6 +111,13 @@ __attribute__((target("avx2"))) void FlaggedOutliersAvx2(const float* raw, const
 __attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, const double* pjy, const double* pjjy, int k0, int k1, int h,
                            bool slope, double inv_s0, double inv_s2, double origin, double* fit_a, double* fit_b,
                            float* af, float* bf);
+// SmoothAlongLine's fit of a point of a stretch joined across steep steps (smooth.cc, steep_fit; order 0 or 1:
+// slope), for the 4 points i4[0..3] of the stretch [start, end], each over its window [max(start, i - h),
+// min(end, i + h)] of raw (readable from -h to the stretch's end + h), and again without the neighbours more
+// than outlier_px across the line from the first fit where there are such: each point's smoothed column (the
+// fit's a) into fit_a[0..3], bit for bit as the scalar fits.
+__attribute__((target("avx2"))) void SteepFitsAvx2(const float* raw, const int* i4, int start, int end, int h, bool slope,
+                                                   double outlier_px, double* fit_a);
 // AlbedoBlurredRatio (point.cc) of the pixels [lo, lo + count), count a multiple of 4, whose blur lies inside
 // the row (lo >= kAlbedoRadius, lo + count - 1 + kAlbedoRadius < the row's width), 4 at a time, bit for bit
 // as AlbedoBlurredRatioAt: into ratio[0, count).

@@ -146,6 +146,101 @@ __attribute__((target("avx2"))) double WholeWindowFitsAvx2(const double* py, con
   return std::max(std::max(lanes[0], lanes[1]), std::max(lanes[2], lanes[3]));
 }
 
+// smooth.cc's steep_fit for 4 points (kernels.h: SteepFitsAvx2). Each lane runs the scalar fit's loops, x from
+// -h up, with the same operations on the same numbers (double, no fused multiply-add); a neighbour outside its
+// point's window (or, in the second fit, not explained by the first) adds +0, which leaves a sum as it is (none
+// is ever -0: each starts at +0, and a sum is -0 only when both terms are). Then the scalar fit's solve (order
+// 1: the slope where the window's rows allow it), its outlier test with q = 0 as the scalar straight fit has
+// it, and for the lanes with an outlier the second fit without them.
+namespace {
+struct SteepSums {
+  __m256d s0, s1, s2, t0, t1;
+};
+// The neighbours j = i + x of the lanes' points that lie in their windows [lo, hi].
+__attribute__((target("avx2"))) inline __m256d InWindow(__m128i j, __m128i lo, __m128i hi) {
+  const __m128i out = _mm_or_si128(_mm_cmpgt_epi32(lo, j), _mm_cmpgt_epi32(j, hi));
+  return _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_xor_si128(out, _mm_set1_epi32(-1))));
+}
+// Not explained by the fit (a, b): not (|raw[j] - (a + x (b + x 0))| <= limit), a NaN included.
+__attribute__((target("avx2"))) inline __m256d Unexplained(__m256d raw_j, double xd, __m256d a, __m256d b,
+                                                           __m256d limit) {
+  const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
+  const __m256d fitted =
+      _mm256_add_pd(a, _mm256_mul_pd(_mm256_set1_pd(xd), _mm256_add_pd(b, _mm256_set1_pd(xd * 0.0))));
+  return _mm256_cmp_pd(_mm256_and_pd(abs_mask, _mm256_sub_pd(raw_j, fitted)), limit, _CMP_NLE_UQ);
+}
+// The fit's a (relative to ri) and b from its sums, as smooth.cc's fit solves them for order 0 or 1.
+__attribute__((target("avx2"))) inline void SolveSteep(const SteepSums& u, bool slope, __m256d* a, __m256d* b) {
+  const __m256d det = _mm256_sub_pd(_mm256_mul_pd(u.s0, u.s2), _mm256_mul_pd(u.s1, u.s1));
+  const __m256d level = _mm256_mul_pd(_mm256_mul_pd(_mm256_set1_pd(1e-9), u.s0), u.s2);
+  const __m256d sloped = slope ? _mm256_cmp_pd(det, level, _CMP_GT_OQ) : _mm256_setzero_pd();
+  const __m256d a_line = _mm256_div_pd(_mm256_sub_pd(_mm256_mul_pd(u.s2, u.t0), _mm256_mul_pd(u.s1, u.t1)), det);
+  const __m256d b_line = _mm256_div_pd(_mm256_sub_pd(_mm256_mul_pd(u.s0, u.t1), _mm256_mul_pd(u.s1, u.t0)), det);
+  *a = _mm256_blendv_pd(_mm256_div_pd(u.t0, u.s0), a_line, sloped);
+  *b = _mm256_blendv_pd(_mm256_setzero_pd(), b_line, sloped);
+}
+
+// The sums of the lanes' fits over their windows, less (where the fit (a, b) and limit are given) the
+// neighbours that fit does not explain: the point itself always stays.
+// The lanes' neighbours raw[i + x]: one load where the 4 points are consecutive (most: a steep line's rows).
+__attribute__((target("avx2"))) inline __m256d Neighbours(const float* raw, __m128i vi, const int* i4, bool consecutive,
+                                                         int x) {
+  if (consecutive) return _mm256_cvtps_pd(_mm_loadu_ps(raw + i4[0] + x));
+  return _mm256_cvtps_pd(_mm_i32gather_ps(raw, _mm_add_epi32(vi, _mm_set1_epi32(x)), 4));
+}
+__attribute__((target("avx2"))) inline SteepSums SteepFitSums(const float* raw, __m128i vi, const int* i4, bool consecutive,
+                                                             __m256d ri, __m128i lo, __m128i hi, int h, bool drop,
+                                                             __m256d a, __m256d b, __m256d limit) {
+  const __m256d zero = _mm256_setzero_pd();
+  SteepSums u{zero, zero, zero, zero, zero};
+  for (int x = -h; x <= h; ++x) {
+    const __m128i j = _mm_add_epi32(vi, _mm_set1_epi32(x));
+    const __m256d raw_j = Neighbours(raw, vi, i4, consecutive, x);
+    __m256d in = InWindow(j, lo, hi);
+    if (drop && x != 0) in = _mm256_andnot_pd(Unexplained(raw_j, x, a, b, limit), in);
+    if (_mm256_movemask_pd(in) == 0) continue;  // every lane would add +0
+    const double xd = x;
+    const double w = h + 1 - std::abs(xd);
+    const double wx = w * xd, wxx = wx * xd;
+    const __m256d y = _mm256_sub_pd(raw_j, ri);
+    u.s0 = _mm256_add_pd(u.s0, _mm256_and_pd(in, _mm256_set1_pd(w)));
+    u.s1 = _mm256_add_pd(u.s1, _mm256_and_pd(in, _mm256_set1_pd(wx)));
+    u.s2 = _mm256_add_pd(u.s2, _mm256_and_pd(in, _mm256_set1_pd(wxx)));
+    u.t0 = _mm256_add_pd(u.t0, _mm256_and_pd(in, _mm256_mul_pd(_mm256_set1_pd(w), y)));
+    u.t1 = _mm256_add_pd(u.t1, _mm256_and_pd(in, _mm256_mul_pd(_mm256_set1_pd(wx), y)));
+  }
+  return u;
+}
+}  // namespace
+
+__attribute__((target("avx2"))) void SteepFitsAvx2(const float* raw, const int* i4, int start, int end, int h, bool slope,
+                                                   double outlier_px, double* fit_a) {
+  const __m128i vi = _mm_loadu_si128(reinterpret_cast<const __m128i*>(i4));
+  const __m128i lo = _mm_max_epi32(_mm_set1_epi32(start), _mm_sub_epi32(vi, _mm_set1_epi32(h)));
+  const __m128i hi = _mm_min_epi32(_mm_set1_epi32(end), _mm_add_epi32(vi, _mm_set1_epi32(h)));
+  const bool consecutive = i4[1] == i4[0] + 1 && i4[2] == i4[0] + 2 && i4[3] == i4[0] + 3;
+  const __m256d ri = Neighbours(raw, vi, i4, consecutive, 0);
+  const __m256d zero = _mm256_setzero_pd();
+  __m256d a, b;
+  SolveSteep(SteepFitSums(raw, vi, i4, consecutive, ri, lo, hi, h, false, zero, zero, zero), slope, &a, &b);
+  a = _mm256_add_pd(a, ri);
+  const __m256d limit =
+      _mm256_mul_pd(_mm256_set1_pd(outlier_px), _mm256_sqrt_pd(_mm256_add_pd(_mm256_set1_pd(1.0), _mm256_mul_pd(b, b))));
+  __m256d fails = zero;
+  for (int x = -h; x <= h; ++x) {
+    if (x == 0) continue;  // the point itself is always explained
+    const __m128i j = _mm_add_epi32(vi, _mm_set1_epi32(x));
+    const __m256d raw_j = Neighbours(raw, vi, i4, consecutive, x);
+    fails = _mm256_or_pd(fails, _mm256_and_pd(InWindow(j, lo, hi), Unexplained(raw_j, x, a, b, limit)));
+  }
+  if (_mm256_movemask_pd(fails) != 0) {  // the second fit, without the neighbours the first does not explain
+    __m256d a2, b2;
+    SolveSteep(SteepFitSums(raw, vi, i4, consecutive, ri, lo, hi, h, true, a, b, limit), slope, &a2, &b2);
+    a = _mm256_blendv_pd(a, _mm256_add_pd(a2, ri), fails);
+  }
+  _mm256_storeu_pd(fit_a, a);
+}
+
 namespace {
 // One field of 4 consecutive points' terms.
 __attribute__((target("avx2"))) inline __m256d Field(const PointTerms* t, double PointTerms::*m) {

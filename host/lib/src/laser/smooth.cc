@@ -34,6 +34,7 @@ struct SmoothScratch {
   std::vector<double> prefix;                     // prefix sums and first fits of a stretch
   std::vector<uint64_t> bits;                     // the screen's flags, then outlier bits per point
   std::vector<std::array<double, 4>> cumulative;  // running sums of w, w x, w x^2, w x^3 over the window
+  std::vector<int> steep_points;                  // a joined stretch's points fitted over it
 };
 SmoothScratch& smooth_scratch() {
   thread_local SmoothScratch scratch;
@@ -51,6 +52,7 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   using detail::FlaggedOutliersAvx2;
   using detail::HaveAvx2;
   using detail::ScreenWindowsAvx2;
+  using detail::SteepFitsAvx2;
   using detail::WholeWindowFitsAvx2;
 #endif
   ROTOSCAN_CHECK(points != nullptr && scratch != nullptr && half_rows >= 0 && order >= 0 && order <= 2 &&
@@ -165,6 +167,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
   std::vector<double>& prefix = buffers.prefix;
   std::vector<uint64_t>& bits = buffers.bits;
   std::vector<std::array<double, 4>>& cumulative = buffers.cumulative;
+  std::vector<int>& steep_points = buffers.steep_points;
+  steep_points.clear();
   cumulative.resize(static_cast<size_t>(2 * h + 2));
   std::array<double, 4> weight_sums{};  // sums of w, w x, w x^2, w x^3 over x = -h .. x - 1, at index x + h
   for (int x = -h; x <= h; ++x) {
@@ -203,11 +207,29 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
         if (last - first + 1 >= kKeepRows) {
           self(self, first, last);
         } else {
-          for (int i = first; i <= last; ++i)
-            p[i].column = static_cast<float>(steep_fit(i, std::max(start, i - h), std::min(end, i + h)));
+          for (int i = first; i <= last; ++i) steep_points.push_back(i);
         }
         first = last + 1;
       }
+      // The joined fits (each point's window over the joined stretch), 4 points at a time by SteepFitsAvx2 (the
+      // same bits; the runs above are short, most a single row, so the 4 come from several). Its 4 chains of
+      // sums in one loop rather than one latency-bound chain per point: the fit had been ~4 % of a typical
+      // frame (perf, laser_bench BM_ExtractWebcam/1).
+      size_t k = 0;
+#if defined(ROTOSCAN_HAVE_SSSE3_PATH)
+      if (avx2 && order <= 1) {
+        for (; k + 4 <= steep_points.size(); k += 4) {
+          double fa[4];
+          SteepFitsAvx2(raw, steep_points.data() + k, start, end, h, order >= 1, outlier_px, fa);
+          for (int lane = 0; lane < 4; ++lane) p[steep_points[k + static_cast<size_t>(lane)]].column = static_cast<float>(fa[lane]);
+        }
+      }
+#endif
+      for (; k < steep_points.size(); ++k) {
+        const int i = steep_points[k];
+        p[i].column = static_cast<float>(steep_fit(i, std::max(start, i - h), std::min(end, i + h)));
+      }
+      steep_points.clear();
       return;
     }
     if (order == 2) {
