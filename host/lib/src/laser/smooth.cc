@@ -205,6 +205,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
         int last = first;
         while (last < end && std::abs(raw[last + 1] - raw[last]) <= max_jump_px) ++last;
         if (last - first + 1 >= kKeepRows) {
+          // A run holds no steep step, so this call never reaches this branch: steep_points (shared) stays
+          // this call's own.
           self(self, first, last);
         } else {
           for (int i = first; i <= last; ++i) steep_points.push_back(i);
@@ -221,7 +223,8 @@ void SmoothAlongLine(std::vector<LinePoint>* points, int half_rows, int order, d
         for (; k + 4 <= steep_points.size(); k += 4) {
           double fa[4];
           SteepFitsAvx2(raw, steep_points.data() + k, start, end, h, order >= 1, outlier_px, fa);
-          for (int lane = 0; lane < 4; ++lane) p[steep_points[k + static_cast<size_t>(lane)]].column = static_cast<float>(fa[lane]);
+          for (int lane = 0; lane < 4; ++lane)
+            p[steep_points[k + static_cast<size_t>(lane)]].column = static_cast<float>(fa[lane]);
         }
       }
 #endif
