@@ -244,8 +244,8 @@ BENCHMARK(BM_Noise)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 // in the default extractor (the extractor run with it and the later steps off; copied each iteration):
 // 0 the gap step (FillLineGaps, gaps.cc), 1 the steep step (RecentreSteepLines, steep.cc), 2 the line ends
 // (RecentreLineEnds, ends.cc), 3 the along-line smoothing (SmoothAlongLine, smooth.cc, with the webcam frames'
-// steep steps joined and the curvature correction; on the points of every step before it, the rim step off). The frames come from memory
-// here, not from the cache as after the row pass.
+// steep steps joined and the curvature correction; on the points of every step before it, the rim step off).
+// The frames come from memory here, not from the cache as after the row pass.
 void BM_WebcamStep(benchmark::State& state) {
   const Frames& f = WebcamFrames();
   const int which = static_cast<int>(state.range(0));
@@ -253,7 +253,6 @@ void BM_WebcamStep(benchmark::State& state) {
   for (size_t i = 0; i < f.on.size(); ++i) {
     rotoscan::laser::ExtractOptions options;
     options.smooth_half_rows = 0;
-    options.line_ends = false;
     options.steep_across = which >= 2;
     options.fill_gaps = which >= 1;
     options.line_ends = which == 3;
@@ -286,8 +285,8 @@ void BM_WebcamStep(benchmark::State& state) {
   }
   state.counters["frames_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
   state.counters["points_per_frame"] = static_cast<double>(total) / std::max<int64_t>(1, state.iterations());
-  state.SetLabel(std::string(which == 0 ? "gap step" : which == 1 ? "steep step" : which == 2 ? "line ends" : "smoothing") +
-                 (state.range(1) == 1 ? ", cached" : ""));
+  static const char* const kStepNames[] = {"gap step", "steep step", "line ends", "smoothing"};
+  state.SetLabel(std::string(kStepNames[which]) + (state.range(1) == 1 ? ", cached" : ""));
 }
 // Arguments: the step (above); 1: one pair over and over (the frames in the cache, as after the row pass).
 BENCHMARK(BM_WebcamStep)->ArgsProduct({{0, 1, 2, 3}, {0, 1}})->Unit(benchmark::kMicrosecond);
