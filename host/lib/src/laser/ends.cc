@@ -369,10 +369,11 @@ int RecentreJunctionRows(const cv::Mat& on, const cv::Mat& off, int channel, int
         if (d >= from_rows[static_cast<size_t>(k)]) continue;
         const double max_move = faint_row ? kJunctionFaintMaxMovePx : kJunctionMaxMovePx;
         const double move = std::abs(target - q.column);
-        // A row past the corner whose point lies further off than these moves allow (another light there: the
-        // bright line's MJPEG ringing) goes on the fit after the smoothing, where the faint line's own light in
-        // the row shows it (extract_steps.h, kJunctionLightZ).
-        if (deferred != nullptr && past > 0 && move > max_move) {
+        // A row past the corner that these rules leave (further off than they move a row, or past the reach)
+        // and whose point is over kJunctionMaxMovePx off (another light there: the bright line's MJPEG ringing)
+        // goes on the fit after the smoothing, where the faint line's own light in the row shows it
+        // (extract_steps.h, kJunctionLightZ).
+        if (deferred != nullptr && past > 0 && move > kJunctionMaxMovePx && (reached || move > max_move)) {
           if (ghost.empty()) ghost.assign(p.size(), -1.0f), ghost_from.assign(p.size(), 1 << 30);
           if (d >= ghost_from[static_cast<size_t>(k)]) continue;
           if (half < 0) {
