@@ -137,6 +137,27 @@ bool FitSteepLine(const std::vector<LinePoint>& p, int from, int to, SteepLine* 
   return true;
 }
 
+// The faint line's light in `row` on column x: the difference summed over a box of +-half columns less the same
+// box kJunctionSideShift half widths to the side `side` (+1 right, -1 left: away from the row's point, whose
+// light is another's), over the square root of the pair's variance in units of sigma^2 (kJunctionCorrelation 2
+// N): z times the noise sigma (DN); negative where a box leaves the row.
+double FaintLightZ(const cv::Mat& on, const cv::Mat& off, int channel, int row, double x, double half, int side) {
+  const int step = on.channels();
+  const int c0 = static_cast<int>(std::lround(x - half)), c1 = static_cast<int>(std::lround(x + half));
+  const int shift = static_cast<int>(std::lround(kJunctionSideShift * half)) * side;
+  if (std::min(c0, c0 + shift) < 0 || std::max(c1, c1 + shift) >= on.cols) return -1;
+  const uint8_t* pa = on.ptr<uint8_t>(row) + channel;
+  const uint8_t* pb = off.ptr<uint8_t>(row) + channel;
+  auto diff = [&](int c) {
+    const int a = pa[c * step], b = pb[c * step];
+    return a == 255 && b < 255 ? 255 - b : a - b;
+  };
+  long box = 0, side_box = 0;
+  for (int c = c0; c <= c1; ++c) box += diff(c), side_box += diff(c + shift);
+  const int n = c1 - c0 + 1;
+  return static_cast<double>(box - side_box) / std::sqrt(kJunctionCorrelation * 2.0 * n);
+}
+
 }  // namespace
 
 int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
@@ -233,8 +254,12 @@ int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int thr
 // between b and the interior whose peak is at most kJunctionFaintRatio times the interior's mean is the faint
 // line's whichever side of the straight lines' crossing it lies (a sphere's line curves into the corner, so
 // the crossing falls past it), and goes on the fit if that moves it at most kJunctionFaintMaxMovePx (fifteenth
-// session; extract_steps.h has the figures).
-int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
+// session; extract_steps.h has the figures). A row past the crossing that neither rule moves because its point
+// is further off (another light: the bright line's MJPEG ringing, seventeenth session) goes on the fit where the
+// faint line's own light in the row reaches kJunctionLightZ (FaintLightZ), after the smoothing (`deferred`,
+// ApplyJunctionGhostRows; null: not at all).
+int RecentreJunctionRows(const cv::Mat& on, const cv::Mat& off, int channel, int threshold, double noise_dn,
+                         std::vector<LinePoint>* line_points, std::vector<std::pair<int, float>>* deferred) {
   std::vector<LinePoint>& p = *line_points;
   const int n = static_cast<int>(p.size());
   if (n == 0) return 0;
@@ -258,6 +283,11 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
   for (int i = 0; i < n; ++i) point_rows[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].row;
   std::vector<float> moved(p.size());
   std::vector<int> from_rows(p.size(), 1 << 30);  // rows from the bright point a row was moved for
+  std::vector<double> widths;
+  // The deferred moves (extract_steps.h, kJunctionLightZ) and the rows from the bright point each is for;
+  // allocated at the first (most frames have none).
+  std::vector<float> ghost;
+  std::vector<int> ghost_from;
   for (int i = 0; i < n; ++i) moved[static_cast<size_t>(i)] = p[static_cast<size_t>(i)].column;
   // The interior's ends, [lo, hi], move only forwards with b within a stretch (rows increase with the index):
   // found by pointers that walk on from b's predecessor's (fourteenth session: a binary search per point and
@@ -326,16 +356,40 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
       double interior_peak = 0;
       for (int k = lo; k <= hi; ++k) interior_peak += p[static_cast<size_t>(k)].peak;
       interior_peak /= m;
+      double half = -1;  // the interior's half row width, once a row asks for it
+      bool reached = false;  // a bright row past the reach: the rows after it move only by their light (below)
       for (int k = b + dir; k != lo; k += dir) {
         LinePoint& q = p[static_cast<size_t>(k)];
         const double past = (q.row - corner_row) * dir;
         const bool faint_row = q.peak <= kJunctionFaintRatio * interior_peak;
-        if (past > kJunctionReachRows && !faint_row) break;
+        if (past > kJunctionReachRows && !faint_row) reached = true;
         if (past <= 0 && !faint_row) continue;  // the bright line's side of the corner
         const double target = a0 + s * (q.row - base);
         const int d = std::abs(q.row - pb.row);
+        if (d >= from_rows[static_cast<size_t>(k)]) continue;
         const double max_move = faint_row ? kJunctionFaintMaxMovePx : kJunctionMaxMovePx;
-        if (std::abs(target - q.column) > max_move || d >= from_rows[static_cast<size_t>(k)]) continue;
+        const double move = std::abs(target - q.column);
+        // A row past the corner that these rules leave (further off than they move a row, or past the reach)
+        // and whose point is over kJunctionMaxMovePx off (another light there: the bright line's MJPEG ringing)
+        // goes on the fit after the smoothing, where the faint line's own light in the row shows it
+        // (extract_steps.h, kJunctionLightZ).
+        if (deferred != nullptr && past > 0 && move > kJunctionMaxMovePx && (reached || move > max_move)) {
+          if (ghost.empty()) ghost.assign(p.size(), -1.0f), ghost_from.assign(p.size(), 1 << 30);
+          if (d >= ghost_from[static_cast<size_t>(k)]) continue;
+          if (half < 0) {
+            widths.clear();
+            for (int w = lo; w <= hi; ++w) widths.push_back(p[static_cast<size_t>(w)].width);
+            std::nth_element(widths.begin(), widths.begin() + static_cast<long>(widths.size() / 2), widths.end());
+            half = std::max(kSteepMinHalfPx, 0.5 * widths[widths.size() / 2]);
+          }
+          if (FaintLightZ(on, off, channel, q.row, target, half, q.column > target ? -1 : 1) >=
+              kJunctionLightZ * noise_dn) {
+            ghost[static_cast<size_t>(k)] = static_cast<float>(target);
+            ghost_from[static_cast<size_t>(k)] = d;
+          }
+          continue;
+        }
+        if (reached || move > max_move) continue;
         moved[static_cast<size_t>(k)] = static_cast<float>(target);
         from_rows[static_cast<size_t>(k)] = d;
       }
@@ -343,10 +397,23 @@ int RecentreJunctionRows(int threshold, std::vector<LinePoint>* line_points) {
   }
   int count = 0;
   for (int i = 0; i < n; ++i) {
+    // A row the other rules moved for a nearer bright point keeps that move.
+    if (!ghost.empty() && ghost[static_cast<size_t>(i)] >= 0 && ghost_from[static_cast<size_t>(i)] < from_rows[static_cast<size_t>(i)])
+      deferred->emplace_back(p[static_cast<size_t>(i)].row, ghost[static_cast<size_t>(i)]);
     count += from_rows[static_cast<size_t>(i)] < (1 << 30);
     p[static_cast<size_t>(i)].column = moved[static_cast<size_t>(i)];
   }
   return count;
+}
+
+void ApplyJunctionGhostRows(const std::vector<std::pair<int, float>>& deferred, std::vector<LinePoint>* line_points) {
+  std::vector<LinePoint>& p = *line_points;
+  for (const auto& [row, column] : deferred) {
+    const auto it = std::lower_bound(p.begin(), p.end(), row, [](const LinePoint& q, int r) { return q.row < r; });
+    if (it == p.end() || it->row != row) continue;
+    WidenUncertainty(std::max(static_cast<double>(it->uncertainty_px), std::abs(double{column} - it->column)), &*it);
+    it->column = column;
+  }
 }
 
 // A rim (issue 15, fourteenth session, rfglossy4; extract_steps.h, kRimTailRatio, says why and with what

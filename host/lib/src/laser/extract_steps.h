@@ -487,7 +487,37 @@ constexpr double kJunctionMaxMovePx = 8.0;
 // f/4 6 steps 5.070 -> 5.151 %, 7 steps 4.628 -> 4.744 %; textured f/2.4 6 steps 2.538 -> 2.570 %).
 constexpr double kJunctionFaintRatio = 1.6;
 constexpr double kJunctionFaintMaxMovePx = 30.0;
-int RecentreJunctionRows(int threshold, std::vector<LinePoint>* points);
+// Rows past the corner whose point lies further from the fit than those moves allow (seventeenth session,
+// rftabend; ExtractOptions::junction_light). On the textured webcam set the table's rows over 1 px across at the
+// object's foot were mostly a narrow bump (3-6 px wide, 13-22 DN) 3-5 px beside the object's line's end
+// column, 4-8 rows past its end, brighter than the table's line (~8-12 DN, its row width 13-16 px), so the row
+// pass took it; absent from the render without noise, speckle or JPEG, and from the noisy render with JPEG
+// alone off (the bench's frames: the textured table's rows over 1 px across 13 / 25 at f/4 / f/2.4 -> 4 / 6
+// without JPEG): the object's 150-200 DN line ends inside a 16-row MJPEG block and its red channel (4:2:0
+// chroma) rings below. 9-17 px from the table line's fit, beyond kJunctionMaxMovePx, or past the reach, so the
+// step left them. Such a row (past the crossing, over kJunctionMaxMovePx from the fit, not moved by the rules
+// above) goes on the fit where the table line's own light in the row shows it: the difference summed over the
+// interior's half row width each side of the fit, less the same box kJunctionSideShift half widths to the
+// side away from the point (a level or a glow cancels; the point's light is not in it), at least
+// kJunctionLightZ noise units, the box pair's variance kJunctionCorrelation times 2 N sigma^2 (gaps.cc's
+// kGapCorrelation and kGapSideShift; z as its kGapHalfZ, the row's own light in a filled row): set a priori
+// (with the rule's first form, without the rows past the reach: z 2 moved the same rows on the 16 bench cells,
+// z 6 fewer). The move comes after the smoothing (extract.cc), each row's uncertainty at least its move:
+// moved before it, the stretch ran on through the corner and its rows there went over 1 px along the row
+// (textured f/4, 8 steps: per row 2.167 -> 2.191 %). `bench accuracy` (all lit rows, over 1 px across / per
+// row), main a704d52 -> this, textured f/4 at 6 / 7 / 8 / 12 steps: 0.766 -> 0.750 / 0.739 -> 0.712 / 0.503 ->
+// 0.455 / 0.934 -> 0.902 %, per row 2.506 -> 2.458 / 2.600 -> 2.559 / 2.167 -> 2.095 / 2.498 -> 2.458 %;
+// f/2.4: 0.766 / 0.876 -> 0.862 / 0.587 -> 0.503 / 0.694 -> 0.686 %, per row 2.490 -> 2.474 / 2.477 -> 2.436
+// / 2.778 -> 2.694 / 2.482 -> 2.474 %; found and RMS across unchanged, RMS per row unchanged but f/2.4 7 steps
+// 0.328 -> 0.329 px (two rows 11.1 and 1.23 px off along the row now 0.76 and 0.64: within 1 px they count in
+// the RMS); the glossy set identical in all 8 cells (its foot has no such row); the object's rows unchanged.
+constexpr double kJunctionLightZ = 3.0;
+constexpr double kJunctionSideShift = 3.0;
+constexpr double kJunctionCorrelation = 3.0;
+int RecentreJunctionRows(const cv::Mat& on, const cv::Mat& off, int channel, int threshold, double noise_dn,
+                         std::vector<LinePoint>* points, std::vector<std::pair<int, float>>* deferred);
+// The deferred moves (row, column) put in after the smoothing, each row's uncertainty at least its move.
+void ApplyJunctionGhostRows(const std::vector<std::pair<int, float>>& deferred, std::vector<LinePoint>* points);
 
 // After the smoothing: a stretch's fading tail past a rim put on the flat top's faint line through the
 // corner (ends.cc, RecentreRimRows); `noise_dn` the frame's noise sigma. Returns how many rows moved.

@@ -142,6 +142,11 @@ struct ExtractOptions {
   // the corner, whose light the bright line's blur fills, put on the faint line's straight fit from further
   // in (ends.cc, RecentreJunctionRows; issue 15); only on frames whose noise was measured on lit pixels.
   bool junction_rows = true;
+  // With junction_rows: a row past that corner whose point lies further from the faint line's fit than the
+  // step moves a row (another light there: the bright line's MJPEG ringing) put on the fit after the
+  // smoothing, where the faint line's own light in the row shows it (ends.cc, extract_steps.h
+  // kJunctionLightZ; issue 15).
+  bool junction_light = true;
   // A stretch's last rows that fade past a rim (the blurred tail of a side's line where the truth is a flat
   // top's faint line, 2-12 columns per row), put on that line where its light summed along it over those
   // rows shows it (ends.cc, RecentreRimRows; issue 15); only on frames whose noise was measured on lit
