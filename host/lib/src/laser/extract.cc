@@ -439,6 +439,10 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
   if (terms.size() < static_cast<size_t>(rows)) terms.resize(static_cast<size_t>(rows));
   double previous_column = -1.0;
   int previous_row = -10;
+  detail::FrameRows frame_rows;  // step 5's albedo division at a line's top end
+  frame_rows.on = &on;
+  frame_rows.off = &off;
+  frame_rows.channel = channel;
   for (int r = 0; r < rows; ++r) {
     const uint8_t* a;
     const uint8_t* b;
@@ -483,7 +487,7 @@ Status LineExtractor::ExtractRows(const cv::Mat& on, const cv::Mat& off, int cha
     const size_t index = line->points.size();
     LinePoint& p = line->points.emplace_back();
     if (!detail::MeasurePoint(candidates[static_cast<size_t>(best)], a, b, d, cols, r, o, flags,
-                              stats.noise_on_lit, &p, &terms[index], &column)) {
+                              stats.noise_on_lit, &p, &terms[index], &column, &frame_rows)) {
       line->points.pop_back();
       ++stats.bad_width;
       continue;

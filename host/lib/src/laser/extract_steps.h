@@ -151,6 +151,37 @@ constexpr int kAlbedoSharpReach = 4;
 constexpr double kAlbedoBlurPx = 1.0;
 constexpr double kAlbedoExponent = 0.9;
 constexpr int kAlbedoMaxWindow = 256;
+// A line's top end (issue 15, rfdiv; ExtractOptions::albedo_end_rows, AlbedoDivisorRow in point.cc). Below
+// a rim the laser-off row is the blur of the side and of the surface above it (the cylinder's cap, lit by
+// the ambient light from above), which the laser does not light: the webcam's vertical blur (optics sigma
+// 1.2 px, the red channel sampled on every other row, 4:2:0 chroma) carries the cap's 30-40 DN 2-3 rows down
+// over the side's dark cell (the textured set, rows 342-343 below the rim at 341: 21 and 15 DN against the
+// cell's 6), while the difference, the laser's light, holds the side's albedo alone. Divided by that row,
+// the dark side of the line was over-divided and the centre stayed 1.0-1.5 px towards the bright cell
+// (noise-free render 1.3-1.4 px; two rows further down 0.5 px). Such a row is divided by the laser-off row of
+// the line's body instead, the nearest row at most kAlbedoEndSearchRows below whose own light
+// kAlbedoEndReachRows above is not weak. A row is at the top end where the light per albedo (the difference
+// over the laser-off row, summed over the half-maximum extent) kAlbedoEndReachRows above is under
+// kAlbedoEndWeakNum / kAlbedoEndWeakDen of its own: at the textured set's rims 0.0-0.3 (rows 340-345), in the
+// line's body at a cell's horizontal edge down to 0.43 (half redivided 60-odd body rows per 6 steps by
+// another cell's row: textured 6 steps f/4, the object's rows over 1 px +1, the table's +2; the difference
+// alone, not per albedo, takes a dark cell above for an end: 8 steps f/4, the smoothed unsaturated divided
+// rows over 1 px 1 -> 27 of 3,351). Not at
+// the bottom end: in this rig a line's bottom meets the table's line, whose light continues (the junction),
+// and there the object's row was taken for the table's (textured f/2.4, 8 steps, the table's rows over 1 px
+// 25 -> 30). Not on a weak line (peak under kAlbedoEndMinPeakDn: the glossy set's faint rows, 8-13 DN, where
+// the light 3 rows away differs by noise alone), nor on the fading tail itself (peak under half the body
+// row's: the rows the rim step puts on the flat top's line, ends.cc; on the glossy set such a row, divided
+// by the body's row, led that step 13.9 px off). Nor where the line does not run down the rows (the body
+// row's difference's centre of mass more than kAlbedoEndShiftPx from the row's: a slanted line sees other
+// columns' albedo there; RealFramesTest.AlbedoDivisionIsUnbiasedUnderTheWebcamBlur's rows, each its own
+// line 50-70 px, had their bias towards the bright side +0.15 -> +0.41 px without it; the rims' side lines
+// move 0.01 px per row). Measured in doc/issue15-rfdiv.md.
+constexpr int kAlbedoEndReachRows = 3;
+constexpr int kAlbedoEndWeakNum = 3, kAlbedoEndWeakDen = 10;
+constexpr int kAlbedoEndSearchRows = 2;
+constexpr int kAlbedoEndMinPeakDn = 30;
+constexpr double kAlbedoEndShiftPx = 1.5;
 // The division's residual (px, about two standard errors), added to a divided point's uncertainty in
 // place of the texture term (ScoreAlbedoDivision): on issue 15's textured set (3 steps x 2 lasers, f/4)
 // the divided rows' per-row error was 0.67 px RMS against ~0.45 px for plain rows of the same set, i.e.
@@ -377,9 +408,20 @@ double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b,
 // continuity test reads it); false when the estimator fails (counted as bad width by the caller). `flags` are
 // step 4's. noise_on_lit: the frame's noise was measured on lit pixels (LineStats::noise_on_lit; the
 // shading-ramp rule).
+// The frames (and the channel) that step 5 reads in rows other than its own: a line's top end rows are
+// divided by another row's laser-off row (AlbedoDivisorRow).
+struct FrameRows {
+  const cv::Mat* on = nullptr;
+  const cv::Mat* off = nullptr;
+  int channel = 0;
+};
+// The row whose laser-off row divides row `row`'s difference over the half-maximum extent [first, last] of a
+// line of peak `peak` DN: `row` itself, or at the line's top end the body's row (kAlbedoEndReachRows).
+int AlbedoDivisorRow(const FrameRows& frames, int row, int first, int last, int peak);
+// frames: for AlbedoDivisorRow (with o.albedo_end_rows and noise_on_lit); null: the row's own laser-off row.
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
                   const ExtractOptions& o, uint8_t flags, bool noise_on_lit, LinePoint* point,
-                  PointTerms* terms, double* column);
+                  PointTerms* terms, double* column, const FrameRows* frames = nullptr);
 
 // Step 5, after the row loop: each point's width, uncertainty and quality from its terms, both scaled by
 // the line's slope at the point (a steep line's centre per row is less certain); sets kFlagLopsided

@@ -2,6 +2,7 @@
 // its chosen candidate; and the estimators themselves (EstimateCentre).
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "extract_steps.h"
 #include "kernels.h"
@@ -321,9 +322,80 @@ double ClippedAlbedoCentre(const uint8_t* a, const uint8_t* d, const uint8_t* b,
   return moment / sum;
 }
 
+namespace {
+
+// The laser's light per albedo in row r over [first, last]: the difference over the laser-off row (floored
+// as the division floors it), summed. A dark cell's line and a white cell's weigh alike (a horizontal cell
+// edge along the line is no end), the surface above a rim, unlit by the laser, is ~0.
+double LightPerAlbedo(const FrameRows& f, int r, int first, int last) {
+  const int step = f.on->channels();
+  const uint8_t* a = f.on->ptr<uint8_t>(r) + f.channel;
+  const uint8_t* b = f.off->ptr<uint8_t>(r) + f.channel;
+  int high = 0;
+  for (int i = first; i <= last; ++i) high = std::max(high, int{b[i * step]});
+  const double floor_dn = std::max(3.0, 0.05 * high);
+  double sum = 0;
+  for (int i = first; i <= last; ++i)
+    sum += std::max(0, int{a[i * step]} - int{b[i * step]}) / std::max(floor_dn, static_cast<double>(b[i * step]));
+  return sum;
+}
+
+// The highest difference of row r over [first, last].
+int PeakInRow(const FrameRows& f, int r, int first, int last) {
+  const int step = f.on->channels();
+  const uint8_t* a = f.on->ptr<uint8_t>(r) + f.channel;
+  const uint8_t* b = f.off->ptr<uint8_t>(r) + f.channel;
+  int peak = 0;
+  for (int i = first; i <= last; ++i) peak = std::max(peak, int{a[i * step]} - int{b[i * step]});
+  return peak;
+}
+
+// The centre of mass of row r's difference over [first, last].
+double DifferenceCentre(const FrameRows& f, int r, int first, int last) {
+  const int step = f.on->channels();
+  const uint8_t* a = f.on->ptr<uint8_t>(r) + f.channel;
+  const uint8_t* b = f.off->ptr<uint8_t>(r) + f.channel;
+  double sum = 0, moment = 0;
+  for (int i = first; i <= last; ++i) {
+    const int v = std::max(0, int{a[i * step]} - int{b[i * step]});
+    sum += v;
+    moment += v * static_cast<double>(i);
+  }
+  return sum > 0 ? moment / sum : -1e9;
+}
+
+}  // namespace
+
+int AlbedoDivisorRow(const FrameRows& f, int row, int first, int last, int peak) {
+  const int rows = f.on->rows;
+  if (peak < kAlbedoEndMinPeakDn || row - kAlbedoEndReachRows < 0 ||
+      row + kAlbedoEndSearchRows + kAlbedoEndReachRows >= rows)
+    return row;
+  auto weak = [&](double light, double of) { return kAlbedoEndWeakDen * light < kAlbedoEndWeakNum * of; };
+  const double here = LightPerAlbedo(f, row, first, last);
+  if (!weak(LightPerAlbedo(f, row - kAlbedoEndReachRows, first, last), here)) return row;  // not an end
+  if (weak(LightPerAlbedo(f, row + kAlbedoEndReachRows, first, last), here)) return row;   // nor a body below
+  for (int k = 1; k <= kAlbedoEndSearchRows; ++k) {
+    const int r = row + k;
+    // The line continues there (its light per albedo not weak against the row's), and this row is not its
+    // fading tail (peak under half the body row's: the rim step's rows, ends.cc).
+    const double own = LightPerAlbedo(f, r, first, last);
+    if (weak(own, here)) return row;
+    if (2 * peak < PeakInRow(f, r, first, last)) return row;
+    // The line runs down the rows there (a rim's side line): the body row's albedo is the one under this
+    // row's line only where the line is at the same columns (its difference's centre of mass over the
+    // extent widened by its width each side within kAlbedoEndShiftPx).
+    const int width = last - first + 1;
+    const int lo = std::max(0, first - width), hi = std::min(f.on->cols - 1, last + width);
+    if (std::abs(DifferenceCentre(f, r, lo, hi) - DifferenceCentre(f, row, lo, hi)) > kAlbedoEndShiftPx) return row;
+    if (!weak(LightPerAlbedo(f, r - kAlbedoEndReachRows, first, last), own)) return r;
+  }
+  return row;
+}
+
 bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const uint8_t* d, int cols, int row,
                   const ExtractOptions& o, uint8_t flags, bool noise_on_lit, LinePoint* point,
-                  PointTerms* terms, double* column_out) {
+                  PointTerms* terms, double* column_out, const FrameRows* frames) {
   double column;
   if (o.estimator == Estimator::kCenterOfMass) {  // EstimateCentre's, with the vector extent scans
     column = CenterOfMassOver(d, c.com_first, c.com_last, c.peak);
@@ -344,7 +416,22 @@ bool MeasurePoint(const Candidate& c, const uint8_t* a, const uint8_t* b, const 
     // level (ClippedAlbedoCentre); else the division.
     double normalised = -1.0;
     if (a[c.peak_pos] == 255) normalised = ClippedAlbedoCentre(a, d, b, cols, c.first, c.last);
-    if (normalised < 0) normalised = AlbedoNormalisedCentre(a, d, b, cols, c.first, c.last);
+    if (normalised < 0) {
+      // At a line's top end, the laser-off row of the line's body (AlbedoDivisorRow, kAlbedoEndReachRows).
+      const uint8_t* divisor = b;
+      if (frames != nullptr && o.albedo_end_rows && noise_on_lit) {
+        const int r = AlbedoDivisorRow(*frames, row, c.first, c.last, c.peak);
+        if (r != row) {
+          thread_local std::vector<uint8_t> body;
+          body.resize(static_cast<size_t>(cols));
+          const uint8_t* p = frames->off->ptr<uint8_t>(r) + frames->channel;
+          const int step = frames->off->channels();
+          for (int i = 0; i < cols; ++i) body[static_cast<size_t>(i)] = p[i * step];
+          divisor = body.data();
+        }
+      }
+      normalised = AlbedoNormalisedCentre(a, d, divisor, cols, c.first, c.last);
+    }
     if (normalised >= 0) {
       column = normalised;
       albedo_edge = true;

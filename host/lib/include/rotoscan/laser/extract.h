@@ -160,6 +160,10 @@ struct ExtractOptions {
   // interior's peak per albedo, so that a dark cell's real last rows are not taken for the tail (ends.cc,
   // extract_steps.h kRimAlbedoHalfPx; issue 15).
   bool rim_rows_albedo = true;
+  // A line's first rows below its top end (a rim), where the laser-off row's blur mixes in the surface above
+  // that the laser does not light, divided by the laser-off row of the line's body a row or two further
+  // down (point.cc, AlbedoDivisorRow; issue 15); only on frames whose noise was measured on lit pixels.
+  bool albedo_end_rows = true;
   // Rows missing inside a stretch of line (at most 16 between two found rows) looked for along the
   // stretch's curve with a matched filter over several rows, a threshold on their summed difference
   // (gaps.cc: the webcam table's weak, speckled line); only on frames whose noise was measured on lit
