@@ -336,7 +336,7 @@ TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
     const double s = (1 + 8 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1), length = std::sqrt(1 + s * s);
     const double dr = std::uniform_int_distribution<int>(-3, 3)(rng), foot_c = 10 + 44 * unit(rng);
     double t = unit(rng) - 0.5, half = 1 + 4 * unit(rng);
-    if (trial % 4 == 1) {  // a pixel's across exactly on the window's edge: |across - t| = half
+    if (trial % 4 == 1) {  // a pixel's across exactly on the window's edge: |across - t| = half (as rounded)
       const int c = std::uniform_int_distribution<int>(0, cols - 1)(rng);
       half = std::abs((c - foot_c - s * dr) / length - t);
       near_edge += half > 0;

@@ -455,8 +455,8 @@ constexpr int kEndOnLineRows = 2;
 // with w = d - level and across = (c - foot_c - s dr) / L, follows from them (AcrossCentre). Sixteenth
 // session and before, the two sums w and w across were added pixel by pixel in column order for their
 // bits: 4 dependent additions a block of 4 pixels, which left the window's loads waiting (seventeenth
-// session, rfspeed6: laser_bench BM_WebcamStep/2/0, the line ends from memory, 23.3-23.5 -> 21.8 µs, min of 7,
-// 3 rounds alternated; cached, /2/1, 20.9-21.0 either way; the same points, laser_digest and bench accuracy).
+// session, rfspeed6: laser_bench BM_WebcamStep/2/0, the line ends from memory, 23.3-23.8 -> 21.4-21.5 µs, min
+// of 5, 3 rounds alternated; cached, /2/1, ~21 either way; the same points, laser_digest and bench accuracy).
 struct AcrossSums {
   double n = 0, d = 0, dc = 0, c = 0, ddr = 0, dr = 0;
 };

@@ -389,11 +389,12 @@ __attribute__((target("avx2"), always_inline)) static inline __m128i FourPixels(
 // whole numbers, so the lanes' sums and their total are the scalar loop's to the bit in any order. Columns
 // up to readable_last may be read (a gray row's last block then takes 4 bytes at once; its lanes past c_last
 // are masked off).
-// The along and across tests (|along| > along_px, along = num / L; |across - t| > half, across = num' / L)
-// are decided on the numerators against the bounds times L (1 -+ kAlongMargin) for each lane, the divisions
-// made only for a block with a lane within that margin of an edge (or NaN), where the rounded quotient might
-// fall on the other side; the quotients' rounding is ~1e-16 relative (fourteenth session: the along test;
-// seventeenth: the across test, once its quotient was no longer needed for the sums).
+// The along test (fourteenth session): |along| > along_px where along = num / L is decided on |num| against
+// along_px L (1 -+ kAlongMargin) for each lane, the division made only for a block with a lane within that
+// margin of the edge (or NaN), where the rounded quotient might fall on the other side; the quotient's
+// rounding is ~1e-16 relative. The across test divides always: decided the same way, once its quotient was
+// no longer needed for the sums, it was ~2 % slower (seventeenth session, laser_bench BM_WebcamStep/2/0
+// 21.7-22.0 against 22.1-22.4 µs, 3 rounds alternated: a branch there holds back the next block's loads).
 constexpr double kAlongMargin = 1e-9;
 __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsInline(const uint8_t* pa, const uint8_t* pb,
                                                        int step, int c, int c_last, int readable_last, double dr,
@@ -406,9 +407,6 @@ __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsI
   const __m256d v_half = _mm256_set1_pd(half), v_along = _mm256_set1_pd(along_px), v_level = _mm256_set1_pd(level);
   const __m256d v_along_in = _mm256_set1_pd(along_px * length * (1.0 - kAlongMargin));
   const __m256d v_along_out = _mm256_set1_pd(along_px * length * (1.0 + kAlongMargin));
-  const __m256d v_tl = _mm256_set1_pd(t * length);
-  const __m256d v_half_in = _mm256_set1_pd(half * length * (1.0 - kAlongMargin));
-  const __m256d v_half_out = _mm256_set1_pd(half * length * (1.0 + kAlongMargin));
   const __m256d one = _mm256_set1_pd(1.0);
   const __m128i lanes = _mm_setr_epi32(0, 1, 2, 3), full = _mm_set1_epi32(255);
   const __m128i headroom = _mm_set1_epi32(255 - threshold), v_c0 = _mm_set1_epi32(c0);
@@ -428,12 +426,8 @@ __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsI
       along_beyond = _mm256_cmp_pd(_mm256_and_pd(along, abs_mask), v_along, _CMP_GT_OQ);
     }
     const __m256d across_num = _mm256_sub_pd(dc, v_sdr);
-    const __m256d across_abs = _mm256_and_pd(_mm256_sub_pd(across_num, v_tl), abs_mask);
-    __m256d across_beyond = _mm256_cmp_pd(across_abs, v_half_out, _CMP_GT_OQ);
-    if (_mm256_movemask_pd(_mm256_or_pd(across_beyond, _mm256_cmp_pd(across_abs, v_half_in, _CMP_LT_OQ))) != 0xf) {
-      const __m256d across = _mm256_div_pd(across_num, v_length);  // as the scalar loop
-      across_beyond = _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ);
-    }
+    const __m256d across = _mm256_div_pd(across_num, v_length);  // as the scalar loop
+    const __m256d across_beyond = _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ);
     const __m256d dd = _mm256_cvtepi32_pd(d);
     const __m256d w = _mm256_sub_pd(dd, v_level);
     // Kept: not (|along| > along_px), not (|across - t| > half), w > 0 (the scalar loop's tests).
