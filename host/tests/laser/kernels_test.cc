@@ -311,15 +311,20 @@ TEST(KernelsTest, AlbedoBlurredRatioAvx2MatchesPortable) {
   EXPECT_GT(above, 10000);
 }
 
-// AcrossRowSumsAvx2 against its portable namesake, both sums bit for bit (in double, before the step rounds
-// its result to a float column): random rows (saturated pixels, noise), lines of either slope through them
-// at random offsets, windows cut at any column (runs of 0 to 40 columns, so every remainder of 4), gray and
-// 3-channel rows, sums that start at 0 or elsewhere.
+// AcrossRowSumsAvx2 against its portable namesake, all six sums bit for bit: random rows (saturated pixels,
+// noise), lines of either slope through them at random offsets, windows cut at any column (runs of 0 to 40
+// columns, so every remainder of 4), gray and 3-channel rows, sums that start at 0 or elsewhere (whole
+// numbers, as the sums always are).
+bool SameSums(const AcrossSums& x, const AcrossSums& y) {
+  return std::memcmp(&x.n, &y.n, sizeof(double)) == 0 && std::memcmp(&x.d, &y.d, sizeof(double)) == 0 &&
+         std::memcmp(&x.dc, &y.dc, sizeof(double)) == 0 && std::memcmp(&x.c, &y.c, sizeof(double)) == 0 &&
+         std::memcmp(&x.ddr, &y.ddr, sizeof(double)) == 0 && std::memcmp(&x.dr, &y.dr, sizeof(double)) == 0;
+}
 TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
   if (!HaveAvx2()) GTEST_SKIP() << "no AVX2 on this CPU";
   std::mt19937 rng(43);
   std::uniform_real_distribution<double> unit(0.0, 1.0);
-  int kept = 0;
+  int kept = 0, near_edge = 0;
   for (int trial = 0; trial < 4000; ++trial) {
     const int cols = 64, step = trial % 2 == 0 ? 1 : 3;
     std::vector<uint8_t> on_row, off_row, a(static_cast<size_t>(cols * step)), b(static_cast<size_t>(cols * step));
@@ -330,21 +335,29 @@ TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
     }
     const double s = (1 + 8 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1), length = std::sqrt(1 + s * s);
     const double dr = std::uniform_int_distribution<int>(-3, 3)(rng), foot_c = 10 + 44 * unit(rng);
-    const double t = unit(rng) - 0.5, half = 1 + 4 * unit(rng), level = 60 * unit(rng);
+    double t = unit(rng) - 0.5, half = 1 + 4 * unit(rng);
+    if (trial % 4 == 1) {  // a pixel's across exactly on the window's edge: |across - t| = half (as rounded)
+      const int c = std::uniform_int_distribution<int>(0, cols - 1)(rng);
+      half = std::abs((c - foot_c - s * dr) / length - t);
+      near_edge += half > 0;
+    }
+    const double level = 60 * unit(rng);
     const int threshold = std::uniform_int_distribution<int>(1, 40)(rng);
     const int c_first = std::uniform_int_distribution<int>(0, cols - 1)(rng);
     const int c_last = std::min(cols - 1, c_first + std::uniform_int_distribution<int>(-1, 40)(rng));
-    double w0 = trial % 3 == 0 ? 0.0 : 100 * unit(rng), wt0 = trial % 3 == 0 ? 0.0 : 100 * (unit(rng) - 0.5);
-    double sw_scalar = w0, swt_scalar = wt0, sw_avx2 = w0, swt_avx2 = wt0;
+    const int c0 = static_cast<int>(std::floor(foot_c));
+    AcrossSums start;
+    if (trial % 3 != 0) start = {7, 900, -3000, -12, 500, 4};
+    AcrossSums by_scalar = start, by_avx2 = start;
     scalar::AcrossRowSums(a.data(), b.data(), step, c_first, c_last, dr, foot_c, s, length, t, half, level, threshold,
-                          8.0, &sw_scalar, &swt_scalar);
+                          8.0, c0, &by_scalar);
     AcrossRowSumsAvx2(a.data(), b.data(), step, c_first, c_last, dr, foot_c, s, length, t, half, level, threshold, 8.0,
-                      &sw_avx2, &swt_avx2);
-    ASSERT_EQ(0, std::memcmp(&sw_scalar, &sw_avx2, sizeof(double))) << "trial " << trial;
-    ASSERT_EQ(0, std::memcmp(&swt_scalar, &swt_avx2, sizeof(double))) << "trial " << trial;
-    kept += sw_scalar != w0;
+                      c0, &by_avx2);
+    ASSERT_TRUE(SameSums(by_scalar, by_avx2)) << "trial " << trial << " n " << by_scalar.n << " / " << by_avx2.n;
+    kept += by_scalar.n != start.n;
   }
   EXPECT_GT(kept, 1000);  // pixels were kept, not all rejected
+  EXPECT_GT(near_edge, 500);
   // Pixels on the along window's edge (|along| = 8 exactly, or within 1e-12 of it), where the AVX2 loop
   // divides to decide (its test on the numerator leaves the edge's margin undecided): kept as by the scalar
   // loop's own division (fourteenth session).
@@ -354,17 +367,63 @@ TEST(KernelsTest, AcrossRowSumsAvx2MatchesPortable) {
       const int cols = 40;
       std::vector<uint8_t> a(cols, 200), b(cols, 10);
       const double length = std::sqrt(1 + s * s);
-      double sw_scalar = 0, swt_scalar = 0, sw_avx2 = 0, swt_avx2 = 0;
-      scalar::AcrossRowSums(a.data(), b.data(), 1, 0, cols - 1, dr, 20.0, s, length, 0.0, 30.0, 5.0, 10, 8.0,
-                            &sw_scalar, &swt_scalar);
-      AcrossRowSumsAvx2(a.data(), b.data(), 1, 0, cols - 1, dr, 20.0, s, length, 0.0, 30.0, 5.0, 10, 8.0, &sw_avx2,
-                        &swt_avx2);
-      ASSERT_EQ(0, std::memcmp(&sw_scalar, &sw_avx2, sizeof(double))) << "dr " << dr << " s " << s;
-      ASSERT_EQ(0, std::memcmp(&swt_scalar, &swt_avx2, sizeof(double))) << "dr " << dr << " s " << s;
-      on_edge += sw_scalar > 0;
+      AcrossSums by_scalar, by_avx2;
+      scalar::AcrossRowSums(a.data(), b.data(), 1, 0, cols - 1, dr, 20.0, s, length, 0.0, 30.0, 5.0, 10, 8.0, 20,
+                            &by_scalar);
+      AcrossRowSumsAvx2(a.data(), b.data(), 1, 0, cols - 1, dr, 20.0, s, length, 0.0, 30.0, 5.0, 10, 8.0, 20, &by_avx2);
+      ASSERT_TRUE(SameSums(by_scalar, by_avx2)) << "dr " << dr << " s " << s;
+      on_edge += by_scalar.n > 0;
     }
   }
   EXPECT_GT(on_edge, 0);  // the edge's pixels were kept somewhere (|along| = 8 is within the window)
+}
+
+// ends.cc's centre across from the sums (AcrossCentre) against the centre of mass defined pixel by pixel,
+// sum (d - level) across / sum (d - level) with across = (c - foot_c - s dr) / L, in long double: within
+// 1e-12 px; and the sums, whole numbers, the same bits whatever the order the rows are added in (the
+// sixteenth session's sums of w and w across, in double pixel by pixel, were not: with the rows added last to
+// first rather than first to last, 3,583 of these 4,000 windows gave other bits, measured with that loop).
+TEST(KernelsTest, AcrossSumsAreExactAndTheirCentreIsTheDefinition) {
+  std::mt19937 rng(53);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  int measured = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const int cols = 64, rows = 3;
+    std::vector<std::vector<uint8_t>> on(rows), off(rows);
+    for (int r = 0; r < rows; ++r) RandomRows(&rng, cols, &on[static_cast<size_t>(r)], &off[static_cast<size_t>(r)]);
+    const double s = (1 + 8 * unit(rng)) * (unit(rng) < 0.5 ? -1 : 1), length = std::sqrt(1 + s * s);
+    const double foot_c = 20 + 24 * unit(rng), t = unit(rng) - 0.5, half = 2 + 6 * unit(rng);
+    const double level = 3.0 * (20 + 235 * unit(rng)) / 20.0;
+    const int threshold = std::uniform_int_distribution<int>(1, 40)(rng), r0 = 1;
+    const int c0 = static_cast<int>(std::floor(foot_c));
+    AcrossSums forward, backward;
+    long double sum_w = 0, sum_wt = 0;
+    for (int k = 0; k < rows; ++k) {
+      const int r = k, r_back = rows - 1 - k;
+      scalar::AcrossRowSums(on[static_cast<size_t>(r)].data(), off[static_cast<size_t>(r)].data(), 1, 0, cols - 1,
+                            r - r0, foot_c, s, length, t, half, level, threshold, 30.0, c0, &forward);
+      scalar::AcrossRowSums(on[static_cast<size_t>(r_back)].data(), off[static_cast<size_t>(r_back)].data(), 1, 0,
+                            cols - 1, r_back - r0, foot_c, s, length, t, half, level, threshold, 30.0, c0, &backward);
+      for (int c = 0; c < cols; ++c) {  // the definition, with the scalar loop's tests
+        const double dc = c - foot_c, dr = r - r0;
+        const double across = (dc - s * dr) / length;
+        if (std::abs((dr + s * dc) / length) > 30.0 || std::abs(across - t) > half) continue;
+        const int d = LaserDifference(on[static_cast<size_t>(r)][static_cast<size_t>(c)],
+                                      off[static_cast<size_t>(r)][static_cast<size_t>(c)], threshold);
+        if (d - level <= 0) continue;
+        sum_w += d - static_cast<long double>(level);
+        sum_wt += (d - static_cast<long double>(level)) * ((c - static_cast<long double>(foot_c)) - s * dr) / length;
+      }
+    }
+    ASSERT_TRUE(SameSums(forward, backward)) << "trial " << trial;
+    double centre = 0;
+    const bool found = AcrossCentre(forward, foot_c - c0, s, length, level, &centre);
+    ASSERT_EQ(found, sum_w > 0) << "trial " << trial;
+    if (!found) continue;
+    ASSERT_NEAR(centre, static_cast<double>(sum_wt / sum_w), 1e-12) << "trial " << trial;
+    ++measured;
+  }
+  EXPECT_GT(measured, 3000);
 }
 
 // SteepColumnAvx2 against its portable namesake, every bin's 8 sums bit for bit: random columns of random

@@ -47,7 +47,7 @@ bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int thresh
                   double half, double level, double* t_out) {
   const int step = on.channels();
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
-  const bool avx2 = HaveAvx2();  // 4 pixels at a time (AcrossWindowSumsAvx2, the same bits)
+  const bool avx2 = HaveAvx2();  // 4 pixels at a time (AcrossWindowSumsAvx2, the same sums)
 #endif
   const double length = std::sqrt(1.0 + s * s);
   // The unit vectors along (row, column) = (1, s) / L and across (-s, 1) / L; the foot: the line's point in
@@ -56,16 +56,18 @@ bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int thresh
   const double row_reach = (kSteepAlongPx + half * std::abs(s)) / length + 1.0;
   const int r_first = std::max(0, static_cast<int>(std::floor(r0 - row_reach)));
   const int r_last = std::min(on.rows - 1, static_cast<int>(std::ceil(r0 + row_reach)));
+  // The sums' columns from c0, an integer near the foot, so that they stay small.
+  const int c0 = static_cast<int>(std::clamp(std::floor(foot_c), -1e9, 1e9));
+  const double foot_rel = foot_c - c0;
   double t = 0;
   for (int iteration = 0; iteration < kSteepIterations; ++iteration) {
-    double sum_w = 0, sum_wt = 0;
+    AcrossSums sums;
 #if defined(ROTOSCAN_HAVE_SSSE3_PATH)
     if (avx2) {  // the loop below, in one AVX2 function
       AcrossWindowSumsAvx2(on.ptr<uint8_t>(0) + channel, on.step[0], off.ptr<uint8_t>(0) + channel, off.step[0], step,
                            on.cols, r_first, r_last, r0, a, s, length, foot_c, t, half, level, threshold,
-                           kSteepAlongPx, &sum_w, &sum_wt);
-      if (sum_w <= 0) return false;
-      t = sum_wt / sum_w;
+                           kSteepAlongPx, c0, &sums);
+      if (!AcrossCentre(sums, foot_rel, s, length, level, &t)) return false;
       continue;
     }
 #endif
@@ -84,10 +86,9 @@ bool CentreAcross(const cv::Mat& on, const cv::Mat& off, int channel, int thresh
       const uint8_t* pa = on.ptr<uint8_t>(r) + channel;
       const uint8_t* pb = off.ptr<uint8_t>(r) + channel;
       scalar::AcrossRowSums(pa, pb, step, c_first, c_last, dr0, foot_c, s, length, t, half, level, threshold,
-                            kSteepAlongPx, &sum_w, &sum_wt);
+                            kSteepAlongPx, c0, &sums);
     }
-    if (sum_w <= 0) return false;
-    t = sum_wt / sum_w;
+    if (!AcrossCentre(sums, foot_rel, s, length, level, &t)) return false;
   }
   *t_out = t;
   return true;

@@ -491,6 +491,25 @@ constexpr int kEndResumeRows = 16;
 // glossy 1.595 -> 1.533 %, textured 0.910 -> 0.862 %; f/2.4 1.208 -> 1.177 %, 1.221 -> 1.114 %; LineEndTest.
 // TableRimLastRowsNearTheTruthOnWebcamFrames: 17 -> 10 of 64-65 rows over 1 px.)
 constexpr int kEndOnLineRows = 2;
+// CentreAcross's window (ends.cc): the sums of its kept pixels, each a whole number (c relative to an
+// integer column c0 near the foot, dr the pixel's row less the window's r0), so exact in double and the same
+// bits in any order or vector width: count, d, d c, c, d dr, dr. The centre across, sum w across / sum w
+// with w = d - level and across = (c - foot_c - s dr) / L, follows from them (AcrossCentre). Sixteenth
+// session and before, the two sums w and w across were added pixel by pixel in column order for their
+// bits: 4 dependent additions a block of 4 pixels, which left the window's loads waiting (seventeenth
+// session, rfspeed6: laser_bench BM_WebcamStep/2/0, the line ends from memory, 23.3-23.8 -> 21.4-21.5 µs, min
+// of 5, 3 rounds alternated; cached, /2/1, ~21 either way; the same points, laser_digest and bench accuracy).
+struct AcrossSums {
+  double n = 0, d = 0, dc = 0, c = 0, ddr = 0, dr = 0;
+};
+// The centre across the line from a window's sums (foot_rel = foot_c - c0): false where no pixel has weight.
+inline bool AcrossCentre(const AcrossSums& sums, double foot_rel, double s, double length, double level, double* t) {
+  const double sum_w = sums.d - sums.n * level;
+  if (sums.n == 0 || !(sum_w > 0)) return false;
+  const double sum_dw = (sums.dc - foot_rel * sums.d - s * sums.ddr) - level * (sums.c - foot_rel * sums.n - s * sums.dr);
+  *t = sum_dw / length / sum_w;
+  return true;
+}
 int RecentreLineEnds(const cv::Mat& on, const cv::Mat& off, int channel, int threshold,
                      std::vector<LinePoint>* points);
 

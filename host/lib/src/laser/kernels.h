@@ -126,21 +126,20 @@ __attribute__((target("avx2"))) void AlbedoBlurredRatioAvx2(const uint8_t* d, co
 // ScorePoints (point.cc) of the points [0, n - n % 4), 4 at a time, bit for bit; returns how many.
 __attribute__((target("avx2"))) size_t ScorePointsAvx2(const PointTerms* terms, const FrameScale& frame, LinePoint* points,
                                                        size_t n);
-// AcrossRowSums (kernels_scalar.simd.hpp: ends.cc's centre across the line, one row), 4 pixels at a time, bit
-// for bit.
+// AcrossRowSums (kernels_scalar.simd.hpp: ends.cc's centre across the line, one row), 4 pixels at a time, the
+// same sums (whole numbers) added to *sums.
 __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
                                                        int c_last, double dr, double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
-                                                       double along_px, double* sum_w, double* sum_wt);
+                                                       double along_px, int c0, AcrossSums* sums);
 // ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last]; on0, off0 the laser's byte of row
 // 0, rows on_stride / off_stride bytes apart, `channels` bytes a pixel): each row's run of columns bounded as
-// ends.cc bounds it, then AcrossRowSumsAvx2; bit for bit as ends.cc's scalar loop.
+// ends.cc bounds it, then AcrossRowSumsAvx2's sums added to *sums; the same as ends.cc's scalar loop.
 __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
                                                           size_t off_stride, int channels, int cols, int r_first,
                                                           int r_last, int r0, double a, double s, double length,
                                                           double foot_c, double t, double half, double level,
-                                                          int threshold, double along_px, double* sum_w,
-                                                          double* sum_wt);
+                                                          int threshold, double along_px, int c0, AcrossSums* sums);
 // The pixels of a window's rows (`step` bytes a pixel; columns up to readable_last may be read), 4 at a time:
 // the differences of the pixels within kGapAlongPx added to sums[half * 3 + box] (half 0: along < 0) and
 // counted in counts[], the kept ones appended to near[*near_count...] (room for each row's columns and 4

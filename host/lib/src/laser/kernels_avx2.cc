@@ -384,36 +384,40 @@ __attribute__((target("avx2"), always_inline)) static inline __m128i FourPixels(
 }
 
 // AcrossRowSums (kernels_scalar.simd.hpp) over the columns [c, c_last], 4 at a time (the last block's lanes
-// past c_last masked off): each pixel's along, across, test and weight are the scalar loop's operations on
-// the same numbers (IEEE double, no fused multiply-add), and the weights of the pixels that pass are added
-// to the sums one by one in column order, so the sums are the same bits. Columns up to readable_last may be
-// read (a gray row's last block then takes 4 bytes at once; its lanes past c_last are masked off).
+// past c_last masked off), into 4-lane accumulators acc[0..5] of AcrossSums' six sums: each pixel's tests
+// decide as the scalar loop's on the same numbers (IEEE double, no fused multiply-add), and its terms are
+// whole numbers, so the lanes' sums and their total are the scalar loop's to the bit in any order. Columns
+// up to readable_last may be read (a gray row's last block then takes 4 bytes at once; its lanes past c_last
+// are masked off).
 // The along test (fourteenth session): |along| > along_px where along = num / L is decided on |num| against
 // along_px L (1 -+ kAlongMargin) for each lane, the division made only for a block with a lane within that
 // margin of the edge (or NaN), where the rounded quotient might fall on the other side; the quotient's
-// rounding is ~1e-16 relative. One division a block instead of two: the divider was this loop's bound.
+// rounding is ~1e-16 relative. The across test divides always: decided the same way, once its quotient was
+// no longer needed for the sums, it was ~2 % slower (seventeenth session, laser_bench BM_WebcamStep/2/0
+// 21.7-22.0 against 22.1-22.4 µs, 3 rounds alternated: a branch there holds back the next block's loads).
 constexpr double kAlongMargin = 1e-9;
 __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsInline(const uint8_t* pa, const uint8_t* pb,
                                                        int step, int c, int c_last, int readable_last, double dr,
                                                        double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
-                                                       double along_px, double* sum_w, double* sum_wt) {
+                                                       double along_px, int c0, __m256d* acc) {
   const __m256d abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffff));
   const __m256d v_dr = _mm256_set1_pd(dr), v_sdr = _mm256_set1_pd(s * dr), v_s = _mm256_set1_pd(s);
   const __m256d v_foot = _mm256_set1_pd(foot_c), v_length = _mm256_set1_pd(length), v_t = _mm256_set1_pd(t);
   const __m256d v_half = _mm256_set1_pd(half), v_along = _mm256_set1_pd(along_px), v_level = _mm256_set1_pd(level);
   const __m256d v_along_in = _mm256_set1_pd(along_px * length * (1.0 - kAlongMargin));
   const __m256d v_along_out = _mm256_set1_pd(along_px * length * (1.0 + kAlongMargin));
+  const __m256d one = _mm256_set1_pd(1.0);
   const __m128i lanes = _mm_setr_epi32(0, 1, 2, 3), full = _mm_set1_epi32(255);
-  const __m128i headroom = _mm_set1_epi32(255 - threshold);
-  double w_sum = *sum_w, wt_sum = *sum_wt;
+  const __m128i headroom = _mm_set1_epi32(255 - threshold), v_c0 = _mm_set1_epi32(c0);
   for (; c <= c_last; c += 4) {
     const int n = c_last - c + 1;  // columns left: the lanes from n on are no pixel of the row's run
     const __m128i a = FourPixels(pa, c, n, step, readable_last), b = FourPixels(pb, c, n, step, readable_last);
     // LaserDifference: 255 where a saturates over b <= 255 - threshold, else max(a - b, 0).
     const __m128i saturated = _mm_andnot_si128(_mm_cmpgt_epi32(b, headroom), _mm_cmpeq_epi32(a, full));
     const __m128i d = _mm_blendv_epi8(_mm_max_epi32(_mm_sub_epi32(a, b), _mm_setzero_si128()), full, saturated);
-    const __m256d dc = _mm256_sub_pd(_mm256_cvtepi32_pd(_mm_add_epi32(_mm_set1_epi32(c), lanes)), v_foot);
+    const __m128i ci = _mm_add_epi32(_mm_set1_epi32(c), lanes);
+    const __m256d dc = _mm256_sub_pd(_mm256_cvtepi32_pd(ci), v_foot);
     const __m256d along_num = _mm256_add_pd(v_dr, _mm256_mul_pd(v_s, dc));
     const __m256d along_abs = _mm256_and_pd(along_num, abs_mask);
     __m256d along_beyond = _mm256_cmp_pd(along_abs, v_along_out, _CMP_GT_OQ);
@@ -421,50 +425,60 @@ __attribute__((target("avx2"), always_inline)) static inline void AcrossRowSumsI
       const __m256d along = _mm256_div_pd(along_num, v_length);  // a lane near the edge: as the scalar loop
       along_beyond = _mm256_cmp_pd(_mm256_and_pd(along, abs_mask), v_along, _CMP_GT_OQ);
     }
-    const __m256d across = _mm256_div_pd(_mm256_sub_pd(dc, v_sdr), v_length);
-    const __m256d w = _mm256_sub_pd(_mm256_cvtepi32_pd(d), v_level);
+    const __m256d across_num = _mm256_sub_pd(dc, v_sdr);
+    const __m256d across = _mm256_div_pd(across_num, v_length);  // as the scalar loop
+    const __m256d across_beyond = _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ);
+    const __m256d dd = _mm256_cvtepi32_pd(d);
+    const __m256d w = _mm256_sub_pd(dd, v_level);
     // Kept: not (|along| > along_px), not (|across - t| > half), w > 0 (the scalar loop's tests).
-    const __m256d out = _mm256_or_pd(
-        along_beyond, _mm256_cmp_pd(_mm256_and_pd(_mm256_sub_pd(across, v_t), abs_mask), v_half, _CMP_GT_OQ));
-    __m256d keep = _mm256_andnot_pd(out, _mm256_cmp_pd(w, _mm256_setzero_pd(), _CMP_GT_OQ));
+    __m256d keep = _mm256_andnot_pd(_mm256_or_pd(along_beyond, across_beyond), _mm256_cmp_pd(w, _mm256_setzero_pd(), _CMP_GT_OQ));
     if (n < 4) keep = _mm256_and_pd(keep, _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm_cmplt_epi32(lanes, _mm_set1_epi32(n)))));
-    if (_mm256_movemask_pd(keep) == 0) continue;
-    // The lanes in order, each added where kept (a lane not kept adds +0, which leaves the sums as they are:
-    // neither is ever -0, as both start at +0 and a sum of numbers is -0 only when all of them are).
-    const __m256d keep_w = _mm256_and_pd(keep, w);
-    const __m256d keep_wt = _mm256_and_pd(keep, _mm256_mul_pd(w, across));
-    const __m128d w01 = _mm256_castpd256_pd128(keep_w), w23 = _mm256_extractf128_pd(keep_w, 1);
-    const __m128d t01 = _mm256_castpd256_pd128(keep_wt), t23 = _mm256_extractf128_pd(keep_wt, 1);
-    w_sum += _mm_cvtsd_f64(w01), wt_sum += _mm_cvtsd_f64(t01);
-    w_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(w01, w01)), wt_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(t01, t01));
-    w_sum += _mm_cvtsd_f64(w23), wt_sum += _mm_cvtsd_f64(t23);
-    w_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(w23, w23)), wt_sum += _mm_cvtsd_f64(_mm_unpackhi_pd(t23, t23));
+    const __m256d kd = _mm256_and_pd(keep, dd);
+    const __m256d cr = _mm256_cvtepi32_pd(_mm_sub_epi32(ci, v_c0));  // the column from c0
+    acc[0] = _mm256_add_pd(acc[0], _mm256_and_pd(keep, one));
+    acc[1] = _mm256_add_pd(acc[1], kd);
+    acc[2] = _mm256_add_pd(acc[2], _mm256_mul_pd(kd, cr));  // +-0 where not kept
+    acc[3] = _mm256_add_pd(acc[3], _mm256_and_pd(keep, cr));
+    acc[4] = _mm256_add_pd(acc[4], _mm256_mul_pd(kd, v_dr));
+    acc[5] = _mm256_add_pd(acc[5], _mm256_and_pd(keep, v_dr));
   }
-  *sum_w = w_sum;
-  *sum_wt = wt_sum;
+}
+
+// The accumulators' lanes added into *sums (whole numbers: exact in any order).
+__attribute__((target("avx2"))) static void AddAcrossSums(const __m256d* acc, AcrossSums* sums) {
+  double* out[6] = {&sums->n, &sums->d, &sums->dc, &sums->c, &sums->ddr, &sums->dr};
+  for (int k = 0; k < 6; ++k) {
+    alignas(32) double v[4];
+    _mm256_store_pd(v, acc[k]);
+    *out[k] += (v[0] + v[1]) + (v[2] + v[3]);
+  }
 }
 
 __attribute__((target("avx2"))) void AcrossRowSumsAvx2(const uint8_t* pa, const uint8_t* pb, int step, int c,
                                                        int c_last, double dr, double foot_c, double s, double length,
                                                        double t, double half, double level, int threshold,
-                                                       double along_px, double* sum_w, double* sum_wt) {
-  AcrossRowSumsInline(pa, pb, step, c, c_last, c_last, dr, foot_c, s, length, t, half, level, threshold, along_px, sum_w,
-                      sum_wt);
+                                                       double along_px, int c0, AcrossSums* sums) {
+  __m256d acc[6];
+  for (__m256d& x : acc) x = _mm256_setzero_pd();
+  AcrossRowSumsInline(pa, pb, step, c, c_last, c_last, dr, foot_c, s, length, t, half, level, threshold, along_px, c0,
+                      acc);
+  AddAcrossSums(acc, sums);
 }
 
 // ends.cc's CentreAcross, one pass over its window (rows [r_first, r_last] of the frames, `channels` bytes a
 // pixel, the laser's byte first at on0 / off0): each row's run of columns as ends.cc bounds it (the same
-// operations; ceil and floor are exact however they are done), then AcrossRowSumsAvx2. Here rather than
+// operations; ceil and floor are exact however they are done), then AcrossRowSumsInline. Here rather than
 // in ends.cc so that the bounds' roundings are single instructions and the constants are set once a window.
 __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, size_t on_stride, const uint8_t* off0,
                                                           size_t off_stride, int channels, int cols, int r_first,
                                                           int r_last, int r0, double a, double s, double length,
                                                           double foot_c, double t, double half, double level,
-                                                          int threshold, double along_px, double* sum_w,
-                                                          double* sum_wt) {
+                                                          int threshold, double along_px, int c0, AcrossSums* sums) {
   // The run's along bounds by 1 / s (a column more either side: a column moves along by |s| / L >= 0.7 px
   // on these steep lines, far above the rounding of 1 / s; every pixel of the run is tested itself).
   const double inv_s = 1.0 / s;
+  __m256d acc[6];
+  for (__m256d& x : acc) x = _mm256_setzero_pd();
   for (int r = r_first; r <= r_last; ++r) {
     const double line = a + s * r;
     const double dr0 = r - r0;
@@ -475,9 +489,9 @@ __attribute__((target("avx2"))) void AcrossWindowSumsAvx2(const uint8_t* on0, si
     const int c_last = std::min({cols - 1, static_cast<int>(std::floor(line + (t + half) * length + 1.0)),
                                  static_cast<int>(std::ceil(std::max(along_a, along_b))) + 1});
     AcrossRowSumsInline(on0 + static_cast<size_t>(r) * on_stride, off0 + static_cast<size_t>(r) * off_stride, channels,
-                        c_first, c_last, cols - 1, dr0, foot_c, s, length, t, half, level, threshold, along_px, sum_w,
-                        sum_wt);
+                        c_first, c_last, cols - 1, dr0, foot_c, s, length, t, half, level, threshold, along_px, c0, acc);
   }
+  AddAcrossSums(acc, sums);
 }
 
 // GapWindowRowAvx2 (kernels.h): the tests on the numerators as gaps.cc's loop makes them, on the same numbers

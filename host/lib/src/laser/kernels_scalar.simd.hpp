@@ -159,26 +159,27 @@ inline uint64_t OutlierBits(const float* raw, int i, int h, double a, double b, 
 // ends.cc's centre across the line (CentreAcross), one row's share: over the row's columns [c_first, c_last]
 // (pa, pb: the frames' row at the laser's channel, a pixel every `step` bytes), the pixels within along_px
 // along the line and `half` across it from t, the line column = foot_c + s (row - r0) through the row r0
-// + dr, whose weight w = d - level is positive: *sum_w += w and *sum_wt += w across, in column order.
+// + dr, whose weight w = d - level is positive, added to *sums (AcrossSums, extract_steps.h: whole numbers,
+// so the same bits in any order; AcrossCentre makes the centre from them).
 inline void AcrossRowSums(const uint8_t* pa, const uint8_t* pb, int step, int c_first, int c_last, double dr,
                           double foot_c, double s, double length, double t, double half, double level, int threshold,
-                          double along_px, double* sum_w, double* sum_wt) {
-  double w_sum = *sum_w, wt_sum = *sum_wt;
+                          double along_px, int c0, AcrossSums* sums) {
   for (int c = c_first; c <= c_last; ++c) {
     const double dc = c - foot_c;
     const double along = (dr + s * dc) / length;
     const double across = (dc - s * dr) / length;
     if (std::abs(along) > along_px || std::abs(across - t) > half) continue;
     const int d = LaserDifference(pa[c * step], pb[c * step], threshold);
-    const double w = d - level;
-    if (w <= 0) continue;
-    w_sum += w;
-    wt_sum += w * across;
+    if (d - level <= 0) continue;
+    const double dd = d, cc = c - c0;
+    sums->n += 1;
+    sums->d += dd;
+    sums->dc += dd * cc;
+    sums->c += cc;
+    sums->ddr += dd * dr;
+    sums->dr += dr;
   }
-  *sum_w = w_sum;
-  *sum_wt = wt_sum;
 }
-
 
 // steep.cc's pixel sums (MeasureRun), one column: over its rows [r_first, r_last] (pa, pb: the frames' pixel
 // of the column in row 0, rows a_stride / b_stride bytes apart), the pixels whose difference reaches min_d,
