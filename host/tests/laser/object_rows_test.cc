@@ -1593,7 +1593,8 @@ TEST(ObjectRowsTest, BenchObjectRowsByPlace) {
 // divided rows 1-4 rows below a row whose true line moves over 2 px per row (the rim's corner) while their
 // own moves under 1, against the truth across the line, with the rule and without it, on the test's own
 // seeds (not the bench's, on which it was chosen), per row (no smoothing) and smoothed (~6 s at 4 steps;
-// ROTOSCAN_OBJECT_ROWS_STEPS for another turn). doc/issue15-rfdiv.md has the bench's figures.
+// ROTOSCAN_OBJECT_ROWS_STEPS for another turn). doc/issue15-log.md (seventeenth session, rfdiv) has the
+// bench's figures.
 TEST(ObjectRowsTest, TopEndRowsAreDividedByTheBodysOffRow) {
   const int steps = EnvInt("ROTOSCAN_OBJECT_ROWS_STEPS", 4);
   for (double f_number : {4.0, 2.4}) {

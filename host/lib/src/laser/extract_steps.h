@@ -176,7 +176,7 @@ constexpr int kAlbedoMaxWindow = 256;
 // row's difference's centre of mass more than kAlbedoEndShiftPx from the row's: a slanted line sees other
 // columns' albedo there; RealFramesTest.AlbedoDivisionIsUnbiasedUnderTheWebcamBlur's rows, each its own
 // line 50-70 px, had their bias towards the bright side +0.15 -> +0.41 px without it; the rims' side lines
-// move 0.01 px per row). Measured in doc/issue15-rfdiv.md.
+// move 0.01 px per row). Measured in doc/issue15-log.md (seventeenth session, rfdiv).
 constexpr int kAlbedoEndReachRows = 3;
 constexpr int kAlbedoEndWeakNum = 3, kAlbedoEndWeakDen = 10;
 constexpr int kAlbedoEndSearchRows = 2;
