@@ -139,24 +139,23 @@ bool FitSteepLine(const std::vector<LinePoint>& p, int from, int to, SteepLine* 
 }
 
 // The faint line's light in `row` on column x: the difference summed over a box of +-half columns less the same
-// box kJunctionSideShift half widths to the side `side` (+1 right, -1 left: away from the row's point, whose
-// light is another's), over the square root of the pair's variance in units of sigma^2 (kJunctionCorrelation 2
+// box kGapSideShift half widths to the side `side` (+1 right, -1 left: away from the row's point, whose
+// light is another's), over the square root of the pair's variance in units of sigma^2 (kGapCorrelation 2
 // N): z times the noise sigma (DN); negative where a box leaves the row.
 double FaintLightZ(const cv::Mat& on, const cv::Mat& off, int channel, int row, double x, double half, int side) {
   const int step = on.channels();
   const int c0 = static_cast<int>(std::lround(x - half)), c1 = static_cast<int>(std::lround(x + half));
-  const int shift = static_cast<int>(std::lround(kJunctionSideShift * half)) * side;
+  const int shift = static_cast<int>(std::lround(kGapSideShift * half)) * side;
   if (std::min(c0, c0 + shift) < 0 || std::max(c1, c1 + shift) >= on.cols) return -1;
   const uint8_t* pa = on.ptr<uint8_t>(row) + channel;
   const uint8_t* pb = off.ptr<uint8_t>(row) + channel;
-  auto diff = [&](int c) {
-    const int a = pa[c * step], b = pb[c * step];
-    return a == 255 && b < 255 ? 255 - b : a - b;
-  };
   long box = 0, side_box = 0;
-  for (int c = c0; c <= c1; ++c) box += diff(c), side_box += diff(c + shift);
+  for (int c = c0; c <= c1; ++c) {
+    box += SignedDifference(pa[c * step], pb[c * step]);
+    side_box += SignedDifference(pa[(c + shift) * step], pb[(c + shift) * step]);
+  }
   const int n = c1 - c0 + 1;
-  return static_cast<double>(box - side_box) / std::sqrt(kJunctionCorrelation * 2.0 * n);
+  return static_cast<double>(box - side_box) / std::sqrt(kGapCorrelation * 2.0 * n);
 }
 
 }  // namespace

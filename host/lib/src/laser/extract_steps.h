@@ -36,6 +36,21 @@ inline int LaserDifference(int a, int b, int threshold) {
   return a == 255 && b <= 255 - threshold ? 255 : (a > b ? a - b : 0);
 }
 
+// The signed difference of a laser-on pixel a over its laser-off pixel b, with step 1's rule for a saturated
+// laser-on pixel: 255 - b (the matched filters' box sums: gaps.cc, ends.cc's junction step).
+inline int SignedDifference(int a, int b) {
+  if (a == 255 && b < 255) return 255 - b;
+  return a - b;
+}
+
+// The matched filter's box pair (gaps.cc, which says how they were chosen; ends.cc's junction step uses the
+// same): the side boxes kGapSideShift half widths away; a box's sum varies kGapCorrelation times N sigma^2
+// (neighbouring pixels of a demosaiced MJPEG frame are correlated); each half along the line and a row's own
+// pixels reach kGapHalfZ noise units.
+constexpr double kGapSideShift = 3.0;
+constexpr double kGapHalfZ = 3.0;
+constexpr double kGapCorrelation = 3.0;
+
 // The centre of mass weighs d - 0.15 * peak over the run above that level. Measured on the
 // synthetic cases of EstimatorComparison with levels 0.5, 0.35, 0.25, 0.2, 0.15 and 0.1: below 0.25 the
 // wide weak line gains (more pixels average the noise, 0.092 -> 0.073 px) and nothing loses; 0.15 keeps a
@@ -558,10 +573,10 @@ constexpr double kJunctionFaintMaxMovePx = 30.0;
 // chroma) rings below. 9-17 px from the table line's fit, beyond kJunctionMaxMovePx, or past the reach, so the
 // step left them. Such a row (past the crossing, over kJunctionMaxMovePx from the fit, not moved by the rules
 // above) goes on the fit where the table line's own light in the row shows it: the difference summed over the
-// interior's half row width each side of the fit, less the same box kJunctionSideShift half widths to the
+// interior's half row width each side of the fit, less the same box kGapSideShift half widths to the
 // side away from the point (a level or a glow cancels; the point's light is not in it), at least
-// kJunctionLightZ noise units, the box pair's variance kJunctionCorrelation times 2 N sigma^2 (gaps.cc's
-// kGapCorrelation and kGapSideShift; z as its kGapHalfZ, the row's own light in a filled row): set a priori
+// kJunctionLightZ noise units, the box pair's variance kGapCorrelation times 2 N sigma^2 (the gap step's box
+// pair; z its kGapHalfZ, the row's own light in a filled row): set a priori
 // (with the rule's first form, without the rows past the reach: z 2 moved the same rows on the 16 bench cells,
 // z 6 fewer). The move comes after the smoothing (extract.cc), each row's uncertainty at least its move:
 // moved before it, the stretch ran on through the corner and its rows there went over 1 px along the row
@@ -572,9 +587,7 @@ constexpr double kJunctionFaintMaxMovePx = 30.0;
 // / 2.778 -> 2.694 / 2.482 -> 2.474 %; found and RMS across unchanged, RMS per row unchanged but f/2.4 7 steps
 // 0.328 -> 0.329 px (two rows 11.1 and 1.23 px off along the row now 0.76 and 0.64: within 1 px they count in
 // the RMS); the glossy set identical in all 8 cells (its foot has no such row); the object's rows unchanged.
-constexpr double kJunctionLightZ = 3.0;
-constexpr double kJunctionSideShift = 3.0;
-constexpr double kJunctionCorrelation = 3.0;
+constexpr double kJunctionLightZ = kGapHalfZ;
 int RecentreJunctionRows(const cv::Mat& on, const cv::Mat& off, int channel, int threshold, double noise_dn,
                          std::vector<LinePoint>* points, std::vector<std::pair<int, float>>* deferred);
 // The deferred moves (row, column) put in after the smoothing, each row's uncertainty at least its move.

@@ -103,20 +103,11 @@ constexpr double kGapAlongPx = 4.0;
 // The slope (columns per row) from which a window's row is visited only where it lies within kGapAlongPx
 // along the line.
 constexpr double kGapBandMinSlope = 0.05;
-constexpr double kGapSideShift = 3.0;
-constexpr double kGapHalfZ = 3.0;
-constexpr double kGapCorrelation = 3.0;
 // For the centre of mass's variance: a box's sum varies kGapPixelVariance times N sigma^2 on the webcam
 // scenes' laser-off pairs (GapFillTest prints it: 11.3).
 constexpr double kGapPixelVariance = 11.0;
 constexpr double kGapMinUncertaintyPx = 0.5;
 constexpr double kGapQuality = 0.5;
-
-// The signed difference at (row, col), with step 1's rule for a saturated laser-on pixel (steep.cc).
-inline int SignedDifference(int a, int b) {
-  if (a == 255 && b < 255) return 255 - b;
-  return a - b;
-}
 
 // A coordinate as an index in [0, size - 1], whatever its size (a curve extrapolated far, a non-finite
 // value: no conversion of an out-of-range double to int).

@@ -375,6 +375,10 @@ int AlbedoDivisorRow(const FrameRows& f, int row, int first, int last, int peak)
   const double here = LightPerAlbedo(f, row, first, last);
   if (!weak(LightPerAlbedo(f, row - kAlbedoEndReachRows, first, last), here)) return row;  // not an end
   if (weak(LightPerAlbedo(f, row + kAlbedoEndReachRows, first, last), here)) return row;   // nor a body below
+  // The line's columns: its difference's centre of mass over the extent widened by its width each side.
+  const int width = last - first + 1;
+  const int lo = std::max(0, first - width), hi = std::min(f.on->cols - 1, last + width);
+  const double centre = DifferenceCentre(f, row, lo, hi);
   for (int k = 1; k <= kAlbedoEndSearchRows; ++k) {
     const int r = row + k;
     // The line continues there (its light per albedo not weak against the row's), and this row is not its
@@ -383,11 +387,8 @@ int AlbedoDivisorRow(const FrameRows& f, int row, int first, int last, int peak)
     if (weak(own, here)) return row;
     if (2 * peak < PeakInRow(f, r, first, last)) return row;
     // The line runs down the rows there (a rim's side line): the body row's albedo is the one under this
-    // row's line only where the line is at the same columns (its difference's centre of mass over the
-    // extent widened by its width each side within kAlbedoEndShiftPx).
-    const int width = last - first + 1;
-    const int lo = std::max(0, first - width), hi = std::min(f.on->cols - 1, last + width);
-    if (std::abs(DifferenceCentre(f, r, lo, hi) - DifferenceCentre(f, row, lo, hi)) > kAlbedoEndShiftPx) return row;
+    // row's line only where the line is at the same columns (within kAlbedoEndShiftPx).
+    if (std::abs(DifferenceCentre(f, r, lo, hi) - centre) > kAlbedoEndShiftPx) return row;
     if (!weak(LightPerAlbedo(f, r - kAlbedoEndReachRows, first, last), own)) return r;
   }
   return row;
